@@ -1,0 +1,195 @@
+"""State-space prediction-error / simulation-error refinement (Paper IV's M-I, MATLAB ``pem`` on a state-space
+model of order 2).
+
+Starting from the subspace estimate (:class:`~ident.linear.subspace.N4SID`) or a given linear model of the same
+order, all entries of (A, B, C[, D][, K][, x0]) are refined by ``scipy.optimize.least_squares`` on
+
+* ``focus="simulation"``: the simulation error ``y - yhat`` with K = 0 (output-error criterion; what Paper IV
+  describes: "minimization of the quadratic error between the measured output and the estimated output"), or
+* ``focus="prediction"``: the one-step prediction error of the innovation-form predictor (classical PEM).
+
+The Jacobian is exact (sensitivity recursion, :func:`~ident.linear._statespace.ss_sensitivities`). The full
+parametrisation is redundant by the n^2 similarity transforms; the Levenberg-Marquardt damping handles that.
+
+Initial state: ``estimate_x0=True`` makes x0 a parameter (stored as ``x0_``, the estimation record's initial
+state); ``False`` fixes x0 = 0.
+
+Stability: a step to an unstable A (simulation) or A - K C (prediction) gets a large residual and is rejected; if
+the optimum is nonetheless unstable the eigenvalues are reflected (:func:`~ident.linear._statespace.stabilize`) and
+the result is kept only if it is at least as good as the start. The refinement never returns a model worse on the
+criterion than its start.
+"""
+from __future__ import annotations
+
+from typing import Any, Literal
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ident.io import register_model
+from ident.linear._statespace import (
+    LinearStateSpaceModel,
+    spectral_radius,
+    ss_sensitivities,
+    stabilize,
+    validate_fit_data,
+)
+from ident.linear.subspace import N4SID
+
+
+@register_model("ss_pem")
+class StateSpacePEM(LinearStateSpaceModel):
+    """State-space model of given order refined by prediction- or simulation-error minimisation.
+
+    Parameters
+    ----------
+    order : int
+        State dimension (Paper IV: 2).
+    feedthrough : bool
+        Estimate D.
+    focus : {"simulation", "prediction"}
+        Criterion (see module docstring).
+    estimate_x0 : bool
+        Estimate the initial state x0 with the parameters (True) or fix x0 = 0.
+    horizon : int, optional
+        Horizon of the subspace start (see :class:`N4SID`).
+    max_nfev : int
+        Iteration budget.
+    init : LinearStateSpaceModel, optional
+        A fitted linear model of the same order to start from instead of the subspace estimate.
+
+    Attributes
+    ----------
+    A_, B_, C_, D_, K_, x0_ : ndarray
+    cost_ : float
+        Final mean squared error of the criterion on the estimation data.
+    initial_cost_ : float
+        The same for the start, so ``cost_ <= initial_cost_``.
+    """
+
+    _saved_meta = ("cost_", "initial_cost_")
+
+    def __init__(self, order: int = 2, feedthrough: bool = False,
+                 focus: Literal["simulation", "prediction"] = "simulation",
+                 estimate_x0: bool = True, horizon: int | None = None,
+                 max_nfev: int = 200, init: LinearStateSpaceModel | None = None) -> None:
+        self.order = order
+        self.feedthrough = feedthrough
+        self.focus = focus
+        self.estimate_x0 = estimate_x0
+        self.horizon = horizon
+        self.max_nfev = max_nfev
+        self.init = init
+
+    def _pack(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, K: np.ndarray, x0: np.ndarray
+              ) -> np.ndarray:
+        parts = [A.ravel(), B.ravel(), C.ravel()]
+        if self.feedthrough:
+            parts.append(D.ravel())
+        if self.focus == "prediction":
+            parts.append(K.ravel())
+        if self.estimate_x0:
+            parts.append(x0)
+        return np.concatenate(parts)
+
+    def _unpack(self, th: np.ndarray, n: int, nu: int, ny: int) -> tuple[np.ndarray, ...]:
+        o = 0
+
+        def take(shape: tuple[int, int]) -> np.ndarray:
+            nonlocal o
+            size = shape[0] * shape[1]
+            out = th[o:o + size].reshape(shape)
+            o += size
+            return out
+
+        A, B, C = take((n, n)), take((n, nu)), take((ny, n))
+        D = take((ny, nu)) if self.feedthrough else np.zeros((ny, nu))
+        K = take((n, ny)) if self.focus == "prediction" else np.zeros((n, ny))
+        x0 = th[o:o + n] if self.estimate_x0 else np.zeros(n)
+        return A, B, C, D, K, x0
+
+    def fit(self, u: Any, y: Any) -> StateSpacePEM:
+        n = int(self.order)
+        if n < 1 or n != self.order:
+            raise ValueError(f"order must be a positive integer, got {self.order}")
+        if self.focus not in ("simulation", "prediction"):
+            raise ValueError(f"focus must be 'simulation' or 'prediction', got {self.focus!r}")
+        u_a = np.atleast_2d(np.asarray(u, dtype=float).T).T
+        nu = u_a.shape[1]
+        n_par = n * n + n * nu + n + n * self.feedthrough * nu + (n if self.focus == "prediction" else 0) + n
+        u, y = validate_fit_data(u, y, n_par, 0, f"state-space model of order {n}")
+        ny = y.shape[1]
+        pred = self.focus == "prediction"
+        if self.init is not None:
+            A, B, C, D = (np.array(m, dtype=float) for m in self.init.state_space())
+            if A.shape[0] != n:
+                raise ValueError(f"init model has order {A.shape[0]}, expected {n}")
+            K = np.array(getattr(self.init, "K_", np.zeros((n, ny))), dtype=float) if pred else np.zeros((n, ny))
+        else:
+            start = N4SID(order=n, horizon=self.horizon, feedthrough=self.feedthrough, estimate_k=pred).fit(u, y)
+            A, B, C, D, K = start.A_, start.B_, start.C_, start.D_, start.K_
+        if not self.feedthrough:
+            D = np.zeros((ny, nu))
+        self.A_, self.B_, self.C_, self.D_ = A, B, C, D
+        x0 = self.initial_state(u, y) if self.estimate_x0 else np.zeros(n)
+        free = {"D": bool(self.feedthrough), "K": pred, "x0": self.estimate_x0}
+        y_arg = y if pred else None
+        big = 1e3 * np.sqrt(np.mean(y**2) + 1.0)
+
+        def unstable(A: np.ndarray, C: np.ndarray, K: np.ndarray) -> bool:
+            return spectral_radius(A - K @ C if pred else A) >= 1.0
+
+        def resid(th: np.ndarray) -> np.ndarray:
+            A, B, C, D, K, x0 = self._unpack(th, n, nu, ny)
+            if unstable(A, C, K):
+                return np.full(y.size, big)
+            yhat, _ = self._sim(A, B, C, D, K, u, y_arg, x0)
+            r = (y - yhat).ravel()
+            return r if np.all(np.isfinite(r)) else np.full(y.size, big)
+
+        def jac(th: np.ndarray) -> np.ndarray:
+            A, B, C, D, K, x0 = self._unpack(th, n, nu, ny)
+            _, J = ss_sensitivities(A, B, C, D, K if pred else None, u, y_arg, x0, free)
+            J = -J.reshape(-1, J.shape[2])
+            return np.nan_to_num(J, nan=0.0, posinf=0.0, neginf=0.0)
+
+        th0 = self._pack(A, B, C, D, K, x0)
+        r0 = resid(th0)
+        self.initial_cost_ = float(np.mean(r0**2))
+        res = least_squares(resid, th0, jac=jac, method="lm", x_scale="jac", max_nfev=self.max_nfev,
+                            ftol=1e-10, xtol=1e-10, gtol=1e-10)
+        th = res.x
+        A, B, C, D, K, x0 = self._unpack(th, n, nu, ny)
+        if unstable(A, C, K):
+            A = stabilize(A)
+            th = self._pack(A, B, C, D, K, x0)
+        cost = float(np.mean(resid(th) ** 2))
+        if not cost <= self.initial_cost_:
+            th, cost = th0, self.initial_cost_
+        self.A_, self.B_, self.C_, self.D_, self.K_, self.x0_ = (np.array(m) for m in
+                                                                 self._unpack(th, n, nu, ny))
+        self.cost_ = cost
+        self.nfev_ = int(res.nfev)
+        return self
+
+    @staticmethod
+    def _sim(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, K: np.ndarray, u: np.ndarray,
+             y: np.ndarray | None, x0: np.ndarray) -> tuple[np.ndarray, None]:
+        Abar = A - K @ C if y is not None else A
+        drive = u @ (B - K @ D if y is not None else B).T + (y @ K.T if y is not None else 0.0)
+        X = np.empty((u.shape[0], A.shape[0]))
+        x = x0
+        for t in range(u.shape[0]):
+            X[t] = x
+            x = Abar @ x + drive[t]
+        return X @ C.T + u @ D.T, None
+
+    def _n_params(self) -> int:
+        n, nu, ny = self.A_.shape[0], self.B_.shape[1], self.C_.shape[0]
+        # identifiable parameters (canonical form): the n^2 similarity directions do not count
+        return n * (ny + nu) + (ny * nu if self.feedthrough else 0) + (n * ny if self.focus == "prediction" else 0)
+
+    def _get_state(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        meta, arrays = super()._get_state()
+        meta["params"]["init"] = None  # the start model is not part of the result
+        return meta, arrays
