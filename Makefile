@@ -1,0 +1,29 @@
+# The README's two commands: `make demo` and `make test`. Both set up .venv first.
+PY ?= python3
+VENV := .venv
+VPY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: setup demo test bench clean
+
+setup: $(STAMP)
+
+# torch==2.13.0 first: a CPU build on this machine's disk; a bare torch requirement would pull a CUDA build.
+$(STAMP): pyproject.toml
+	test -x $(VPY) || $(PY) -m venv $(VENV)
+	$(VPY) -m pip install --quiet --upgrade pip
+	$(VPY) -m pip install --quiet torch==2.13.0
+	$(VPY) -m pip install --quiet -e ".[all]"
+	touch $(STAMP)
+
+demo: setup
+	$(VPY) -m experiments.demo
+
+test: setup
+	$(VPY) -m pytest -q
+
+bench: setup
+	$(VPY) -m experiments.benchmark_speed
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

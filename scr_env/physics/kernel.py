@@ -1,0 +1,256 @@
+"""The compiled plant step: urea decomposition, the multi-cell catalyst and the sensors, for a batch of catalysts.
+
+One function, :func:`plant_step`, advances B independent plants by one control interval. The single environment
+calls it with B = 1, the vector environment with B = num_envs; there is no other copy of the physics. The chemistry
+of a cell comes from :mod:`scr_env.physics.cell` (compiled by :mod:`scr_env.physics.backends`).
+
+Integration (per step of length dt, inputs held):
+
+* solid temperature of each cell: implicit Euler of the linear heat balance
+  ``C dT/dt = G (T_gas_in - T) - L (T - T_amb)`` with ``G = m cp (1 - exp(-NTU))`` (gas leaves a cell at
+  ``T + (T_gas_in - T) exp(-NTU)``); cells in flow order, so the whole step is implicit and unconditionally stable;
+* NH3 coverage of each cell: implicit Euler ``theta+ = theta + dt g(theta+)`` of :func:`cell_balance`, solved by a
+  Newton iteration safeguarded by the bracket [0, 1] (g(0) >= 0 and g(1) <= 0, so the root exists and coverage stays
+  in [0, 1] by construction), at the end-of-step temperature, cells in flow order (exact implicit Euler of the
+  block-triangular system). Outlets and rates are evaluated at theta+, so nitrogen is conserved to the Newton
+  tolerance in every step.
+
+Array layouts (float64, C-contiguous):
+
+* ``theta``, ``temperature_k``: (B, N) states, updated in place;
+* ``sensor_state``: (B, N_SENSOR_STATES) lag states of the sensors, updated in place;
+* ``inputs``: (B, N_INPUTS) held over the step, columns :data:`INPUT_FIELDS`;
+* ``cat_params``: (B, len(PACKED_FIELDS)) from :func:`scr_env.params.pack`;
+* ``aux_params``: (B, N_AUX) dosing and sensor parameters from :func:`pack_aux`;
+* ``noise``: (B, N_NOISE) standard-normal draws for this step (the caller owns the random generator);
+* ``out``: (B, N_OUTPUTS) written, columns :data:`OUTPUT_FIELDS`.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from scr_env.constants import (
+    EXHAUST_HEAT_CAPACITY_J_KG_K,
+    EXHAUST_MOLAR_MASS_KG_MOL,
+    NH3_MOL_PER_G_ADBLUE,
+)
+from scr_env.params import DosingParams, SensorParams
+from scr_env.physics.backends import cell_balance_nb, decomposition_efficiency_nb, rate_constants_nb
+
+INPUT_FIELDS = (
+    "exhaust_flow_mol_s",  # mol/s
+    "inlet_temperature_k",  # K, SCR inlet gas
+    "inlet_nox_ppm",  # ppm (mole), NO + NO2
+    "inlet_no2_fraction",  # -, NO2 / NOx
+    "adblue_g_s",  # g/s AdBlue injected
+    "o2_fraction",  # -, O2 mole fraction
+)
+I_FLOW, I_TIN, I_NOX, I_NO2F, I_ADBLUE, I_O2 = range(len(INPUT_FIELDS))
+
+OUTPUT_FIELDS = (
+    "tailpipe_no_ppm",
+    "tailpipe_no2_ppm",
+    "tailpipe_nh3_ppm",
+    "tailpipe_n2o_ppm",
+    "n2_formed_mol_s",  # mol N2 / s formed in the step (rates at the end of the step)
+    "nh3_injected_mol_s",  # mol NH3 / s reaching the catalyst (decomposed urea)
+    "urea_undecomposed_n_mol_s",  # mol N / s of urea not decomposed (deposit / HNCO, leaves the N balance)
+    "outlet_temperature_k",
+    "nh3_stored_mol",  # mol NH3 on the brick at the end of the step
+    "mean_coverage",  # -
+    "nox_sensor_ppm",  # tailpipe NOx sensor reading (cross-sensitive to NH3, lagged, noisy)
+    "nh3_sensor_ppm",  # tailpipe NH3 sensor reading (lagged, noisy)
+    "inlet_temperature_sensor_k",
+    "upstream_nox_sensor_ppm",
+    "exhaust_flow_estimate_mol_s",
+)
+(O_NO, O_NO2, O_NH3, O_N2O, O_N2, O_NH3_INJ, O_UREA_N, O_TOUT, O_STORED, O_COV, O_NOX_SENSOR, O_NH3_SENSOR,
+ O_TIN_SENSOR, O_UPSTREAM_NOX, O_FLOW_EST) = range(len(OUTPUT_FIELDS))
+
+N_SENSOR_STATES = 3  # lag states: tailpipe NOx sensor, NH3 sensor, inlet thermocouple
+N_NOISE = 5  # draws per step: NOx sensor, NH3 sensor, thermocouple, upstream NOx, flow estimate
+
+AUX_FIELDS = (
+    "max_rate_g_s", "decomposition_t50_k", "decomposition_width_k",
+    "nox_sensor_no2_gain", "nox_sensor_nh3_gain", "nox_sensor_time_constant_s", "nox_sensor_noise_ppm",
+    "upstream_nox_noise_ppm", "temperature_time_constant_s", "temperature_noise_k", "flow_noise_fraction",
+    "nh3_sensor_time_constant_s", "nh3_sensor_noise_ppm",
+)
+N_AUX = len(AUX_FIELDS)
+
+_NEWTON_TOL = 1e-12  # coverage tolerance of the implicit solve [-]
+_NEWTON_MAX_IT = 60
+_MIN_Q = 1e-12  # 1/s: floor of flow per site, keeps the algebra defined at zero flow
+_EXP_CP = EXHAUST_MOLAR_MASS_KG_MOL * EXHAUST_HEAT_CAPACITY_J_KG_K  # J/(mol K) of exhaust
+_NH3_PER_G = NH3_MOL_PER_G_ADBLUE
+
+
+def pack_aux(dosing: DosingParams, sensors: SensorParams) -> np.ndarray:
+    """Pack dosing and sensor parameters in the order of :data:`AUX_FIELDS`."""
+    values = {**{k: getattr(dosing, k) for k in ("max_rate_g_s", "decomposition_t50_k", "decomposition_width_k")},
+              **{k: getattr(sensors, k) for k in AUX_FIELDS[3:]}}
+    return np.array([values[k] for k in AUX_FIELDS], dtype=np.float64)
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast,
+                   k_no2, k_ox, k_ox_no, k_n2o):
+    """Root in [0, 1] of R(theta) = (theta - theta_old) inv_dt - g(theta), and :func:`cell_balance` there.
+
+    inv_dt = 1/dt gives the implicit Euler step; inv_dt = 0 gives the steady state. R(0) <= 0 <= R(1) always,
+    so a Newton iteration kept inside a shrinking bracket always converges. Returns (theta, *cell_balance(theta)).
+    """
+    lo = 0.0
+    hi = 1.0
+    th = min(max(theta_old, 0.0), 1.0)
+    for _ in range(_NEWTON_MAX_IT):
+        r = cell_balance_nb(th, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2,
+                            k_ox, k_ox_no, k_n2o)
+        res = (th - theta_old) * inv_dt - r[0]
+        d_res = inv_dt - r[1]
+        # converged when the next Newton correction is below tolerance: the outputs r belong to this theta
+        if d_res > 0.0 and abs(res) <= _NEWTON_TOL * d_res:
+            return th, r
+        if res > 0.0:
+            hi = th
+        else:
+            lo = th
+        new = th - res / d_res if d_res > 0.0 else -1.0
+        if not (lo <= new <= hi):
+            new = 0.5 * (lo + hi)
+        if hi - lo <= _NEWTON_TOL:
+            new = 0.5 * (lo + hi)
+            return new, cell_balance_nb(new, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std,
+                                        k_fast, k_no2, k_ox, k_ox_no, k_n2o)
+        th = new
+    return th, cell_balance_nb(th, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2,
+                               k_ox, k_ox_no, k_n2o)
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def catalyst_chemistry(theta, temperature_k, q, y_nh3_in, y_no_in, y_no2_in, o2_fraction, inv_dt, p, result):
+    """Advance the coverage of every cell (in place) at given cell temperatures; fills ``result`` with
+    (y_no, y_no2, y_nh3, y_n2o at the outlet, N2 formed per site-second summed over cells [1/s])."""
+    n = theta.shape[0]
+    y_nh3 = y_nh3_in
+    y_no = y_no_in
+    y_no2 = y_no2_in
+    y_n2o = 0.0
+    n2_per_site = 0.0
+    for j in range(n):
+        k_ads, k_des, e_dg, k_std, k_fast, k_no2, k_ox, k_ox_no, k_n2o = rate_constants_nb(
+            temperature_k[j], o2_fraction, p[6], p[7], p[8], p[9], p[10], p[11], p[12], p[13], p[14], p[15],
+            p[16], p[17], p[18], p[19], p[20], p[21], p[22], p[23], p[24])
+        th, r = solve_coverage(theta[j], inv_dt, q, y_nh3, y_no, y_no2, k_ads, k_des, e_dg, k_std, k_fast, k_no2,
+                               k_ox, k_ox_no, k_n2o)
+        theta[j] = th
+        (_g, _dg, y_nh3, y_no, y_no2, r_std, r_fast, r_no2, r_ox, _r_ox_no, r_n2o) = r
+        y_n2o += r_n2o / q
+        # N atoms to N2 per site: standard 2, fast 4, NO2-SCR 7/3 (4/3 NH3 + 1 NO2), oxidation to N2 1;
+        # N2O takes 2 N (1 NH3 + 1 NO) per r_n2o, NH3 -> NO keeps its N in the gas
+        n2_per_site += 0.5 * (2.0 * r_std + 4.0 * r_fast + (7.0 / 3.0) * r_no2 + r_ox)
+    result[0] = y_no
+    result[1] = y_no2
+    result[2] = y_nh3
+    result[3] = y_n2o
+    result[4] = n2_per_site
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
+    p = cat_params[b]
+    aux = aux_params[b]
+    th = theta[b]
+    temp = temperature_k[b]
+    n = th.shape[0]
+    sites = p[1]
+    heat_cap = p[2]
+    ua = p[3]
+    loss = p[4]
+    t_amb = p[5]
+    flow = inputs[b, I_FLOW]
+    t_in = inputs[b, I_TIN]
+    nox_in = inputs[b, I_NOX] * 1e-6
+    no2_frac = inputs[b, I_NO2F]
+    adblue = min(max(inputs[b, I_ADBLUE], 0.0), aux[0])
+    o2 = inputs[b, I_O2]
+
+    # --- thermal: implicit Euler per cell in flow order ---------------------------------------------------------
+    mcp = flow * _EXP_CP  # W/K
+    t_gas = t_in
+    if mcp > 0.0:
+        decay = math.exp(-ua / mcp)
+    else:
+        decay = 0.0
+    coupling = mcp * (1.0 - decay)
+    for j in range(n):
+        t_new = (heat_cap * temp[j] + dt * (coupling * t_gas + loss * t_amb)) / (heat_cap + dt * (coupling + loss))
+        temp[j] = t_new
+        t_gas = t_new + (t_gas - t_new) * decay
+
+    # --- urea decomposition upstream of the brick ---------------------------------------------------------------
+    eta = decomposition_efficiency_nb(t_in, aux[1], aux[2])
+    nh3_mol_s = eta * adblue * _NH3_PER_G
+    urea_n_mol_s = (1.0 - eta) * adblue * _NH3_PER_G  # 2 N per urea, same count as NH3 equivalents
+    q = max(flow / sites, _MIN_Q)
+    safe_flow = max(flow, _MIN_Q * sites)
+    y_nh3_in = nh3_mol_s / safe_flow
+
+    # --- chemistry --------------------------------------------------------------------------------------------
+    res = np.empty(5)
+    catalyst_chemistry(th, temp, q, y_nh3_in, nox_in * (1.0 - no2_frac), nox_in * no2_frac, o2, 1.0 / dt, p, res)
+    o = out[b]
+    o[O_NO] = res[0] * 1e6
+    o[O_NO2] = res[1] * 1e6
+    o[O_NH3] = res[2] * 1e6
+    o[O_N2O] = res[3] * 1e6
+    o[O_N2] = res[4] * sites
+    o[O_NH3_INJ] = nh3_mol_s
+    o[O_UREA_N] = urea_n_mol_s
+    o[O_TOUT] = t_gas
+    cov = 0.0
+    for j in range(n):
+        cov += th[j]
+    o[O_STORED] = cov * sites
+    o[O_COV] = cov / n
+
+    # --- sensors: first-order lags (exact discretisation) plus additive noise ------------------------------------
+    ss = sensor_state[b]
+    nz = noise[b]
+    raw_nox = o[O_NO] + aux[3] * o[O_NO2] + aux[4] * o[O_NH3]
+    ss[0] += (1.0 - math.exp(-dt / max(aux[5], 1e-9))) * (raw_nox - ss[0])
+    ss[1] += (1.0 - math.exp(-dt / max(aux[11], 1e-9))) * (o[O_NH3] - ss[1])
+    ss[2] += (1.0 - math.exp(-dt / max(aux[8], 1e-9))) * (t_in - ss[2])
+    o[O_NOX_SENSOR] = max(ss[0] + aux[6] * nz[0], 0.0)
+    o[O_NH3_SENSOR] = max(ss[1] + aux[12] * nz[1], 0.0)
+    o[O_TIN_SENSOR] = ss[2] + aux[9] * nz[2]
+    o[O_UPSTREAM_NOX] = max(inputs[b, I_NOX] + aux[7] * nz[3], 0.0)
+    o[O_FLOW_EST] = max(flow * (1.0 + aux[10] * nz[4]), 0.0)
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def _plant_step_serial(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
+    for b in range(theta.shape[0]):
+        _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
+
+
+@numba.njit(nogil=True, error_model="numpy", parallel=True, cache=True)
+def _plant_step_parallel(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
+    for b in numba.prange(theta.shape[0]):
+        _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
+
+
+PARALLEL_MIN_BATCH = 64  # below this, thread start-up costs more than it saves
+
+
+def plant_step(theta: np.ndarray, temperature_k: np.ndarray, sensor_state: np.ndarray, inputs: np.ndarray, dt: float,
+               cat_params: np.ndarray, aux_params: np.ndarray, noise: np.ndarray, out: np.ndarray) -> None:
+    """Advance B plants by ``dt`` seconds in place (layouts in the module docstring). No validation here: the
+    environments validate their inputs once; see :func:`scr_env.physics.simulate.step` for a checked wrapper."""
+    if theta.shape[0] >= PARALLEL_MIN_BATCH:
+        _plant_step_parallel(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
+    else:
+        _plant_step_serial(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
