@@ -1,0 +1,21 @@
+"""Recursive prediction error method (RPEM) on restricted black-box nonlinear ODE models (thesis Papers I-III)."""
+from ident.rpem.estimator import RecursivePEM
+from ident.rpem.regressors import (
+    PAPER2_TERMS,
+    SCR_PAPER3_LINEAR_TERMS,
+    SCR_PAPER3_TERMS,
+    parse_terms,
+    polynomial_terms,
+)
+from ident.rpem.selection import backward_elimination, forward_selection
+
+__all__ = [
+    "RecursivePEM",
+    "PAPER2_TERMS",
+    "SCR_PAPER3_TERMS",
+    "SCR_PAPER3_LINEAR_TERMS",
+    "parse_terms",
+    "polynomial_terms",
+    "backward_elimination",
+    "forward_selection",
+]

@@ -1,0 +1,422 @@
+"""Compiled (numba) per-sample kernels of the RPEM: model step with its Jacobians, the Gauss-Newton recursion,
+free-run simulation and the extended Kalman filter used for initialisation and k-step prediction.
+
+Everything here works on plain arrays so that numba compiles it once; :mod:`ident.rpem.estimator` owns the
+bookkeeping. Notation follows ALGORITHMS.md section 1:
+
+* ``N`` states in ``d`` chains of length ``n`` (``N = n d``); chain ``k`` holds states ``k n .. k n + n - 1``, its
+  output is its first state and its last state obeys ``dx/dt = sum_j theta_j phi_j`` over the terms it owns.
+* The variable vector of the regressors is ``z = (x_1..x_N, w_1..w_{2m})`` where ``w = (u, u')`` is supplied per
+  sample by the caller (inputs after transform, and their derivatives).
+* A term is stored as up to ``F`` factors ``(variable index, power)`` in ``fvar``/``fpow`` with count ``nf``.
+
+The step of the discretised model, with ``Ts = alpha T`` the scaled sampling period, returns ``x_next``,
+``A = d x_next / d x`` and ``B = d x_next / d theta``, so the sensitivity recursion of the RPEM is simply
+``S(t+T) = A S(t) + B`` (exactly the Euler / midpoint formulas of ALGORITHMS.md, multiplied out).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+EULER = 0
+MIDPOINT = 1
+
+# Indices into the mutable scalar state vector of the recursion.
+ST_GAMMA = 0  # normalised gain gamma(t), used for Lambda
+ST_LAMBDA = 1  # forgetting factor lambda(t)
+ST_STARTED = 2  # 1 once x(0) has been set from the first output sample
+ST_REJECTED = 3  # number of candidate updates refused by the projection onto DM
+ST_COUNT = 4  # number of samples processed
+N_ST = 5
+
+# Indices into the float configuration vector.
+CF_TS = 0  # scaled sampling period alpha * T
+CF_METHOD = 1  # EULER or MIDPOINT
+CF_LAM_RATE = 2  # lambda0 in lambda(t) = lambda0 lambda(t-1) + (1 - lambda0) lambda_inf
+CF_LAM_INF = 3  # limit of the forgetting factor (1: gain ~ 1/t; < 1: tracking)
+CF_RADIUS = 4  # 1 - delta: largest allowed spectral radius of the linearised step
+CF_XMAX = 5  # bound on |x|
+CF_SMAX = 6  # bound on |dx/dtheta|
+CF_UPDATE = 7  # 1: run the parameter update, 0: only propagate (evaluation)
+N_CF = 8
+
+
+@njit(cache=True)
+def _regressors(xv, w, fvar, fpow, nf, n_states, phi, dphi):
+    """phi_j(z) and d phi_j / d x (shape p x N) at z = (xv, w)."""
+    p = phi.shape[0]
+    for j in range(p):
+        val = 1.0
+        for f in range(nf[j]):
+            v = fvar[j, f]
+            zv = xv[v] if v < n_states else w[v - n_states]
+            val *= zv ** fpow[j, f]
+        phi[j] = val
+        for i in range(n_states):
+            dphi[j, i] = 0.0
+        for f in range(nf[j]):
+            v = fvar[j, f]
+            if v >= n_states:
+                continue
+            k = fpow[j, f]
+            der = k * xv[v] ** (k - 1)
+            for g in range(nf[j]):
+                if g != f:
+                    vg = fvar[j, g]
+                    zg = xv[vg] if vg < n_states else w[vg - n_states]
+                    der *= zg ** fpow[j, g]
+            dphi[j, v] += der
+
+
+@njit(cache=True)
+def _rhs(xv, w, theta, fvar, fpow, nf, owner, n_chain, F, J, G, phi, dphi):
+    """F = dx/dt, J = dF/dx (N x N) and G = dF/dtheta (N x p) of the chain model."""
+    N = xv.shape[0]
+    p = theta.shape[0]
+    _regressors(xv, w, fvar, fpow, nf, N, phi, dphi)
+    for i in range(N):
+        for c in range(N):
+            J[i, c] = 0.0
+        for j in range(p):
+            G[i, j] = 0.0
+        if (i % n_chain) != n_chain - 1:
+            F[i] = xv[i + 1]
+            J[i, i + 1] = 1.0
+        else:
+            F[i] = 0.0
+    for j in range(p):
+        last = owner[j] * n_chain + n_chain - 1
+        F[last] += theta[j] * phi[j]
+        G[last, j] = phi[j]
+        for c in range(N):
+            J[last, c] += theta[j] * dphi[j, c]
+
+
+@njit(cache=True)
+def model_step(xv, ws, wh, theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, need_b, work):
+    """One step of the discretised model from ``x`` with inputs ``ws`` (start) and ``wh`` (half step).
+
+    Writes ``x_next``, ``A = dx_next/dx`` and, if ``need_b``, ``B = dx_next/dtheta``.
+    ``work`` is a tuple of scratch arrays (see :func:`_make_work`).
+    """
+    F0, J0, G0, F1, J1, G1, phi, dphi, xbar, M = work
+    N = xv.shape[0]
+    p = theta.shape[0]
+    Ts = cfg[CF_TS]
+    _rhs(xv, ws, theta, fvar, fpow, nf, owner, n_chain, F0, J0, G0, phi, dphi)
+    if cfg[CF_METHOD] == EULER:
+        for i in range(N):
+            x_next[i] = xv[i] + Ts * F0[i]
+            for c in range(N):
+                A[i, c] = Ts * J0[i, c]
+            A[i, i] += 1.0
+            if need_b:
+                for j in range(p):
+                    B[i, j] = Ts * G0[i, j]
+        return
+    for i in range(N):
+        xbar[i] = xv[i] + 0.5 * Ts * F0[i]
+    _rhs(xbar, wh, theta, fvar, fpow, nf, owner, n_chain, F1, J1, G1, phi, dphi)
+    # M = I + Ts/2 J0 = d xbar / dx;  A = I + Ts J1 M;  B = Ts (J1 (Ts/2) G0 + G1)
+    for i in range(N):
+        for c in range(N):
+            M[i, c] = 0.5 * Ts * J0[i, c]
+        M[i, i] += 1.0
+    for i in range(N):
+        x_next[i] = xv[i] + Ts * F1[i]
+        for c in range(N):
+            acc = 0.0
+            for k in range(N):
+                acc += J1[i, k] * M[k, c]
+            A[i, c] = Ts * acc
+        A[i, i] += 1.0
+        if need_b:
+            for j in range(p):
+                acc = 0.0
+                for k in range(N):
+                    acc += J1[i, k] * G0[k, j]
+                B[i, j] = Ts * (0.5 * Ts * acc + G1[i, j])
+
+
+@njit(cache=True)
+def _make_work(N, p):
+    return (np.empty(N), np.empty((N, N)), np.empty((N, p)), np.empty(N), np.empty((N, N)), np.empty((N, p)),
+            np.empty(p), np.empty((p, N)), np.empty(N), np.empty((N, N)))
+
+
+@njit(cache=True)
+def is_stable(A, radius):
+    """True if every eigenvalue of ``A`` lies strictly inside the circle of the given radius."""
+    N = A.shape[0]
+    if N == 1:
+        return abs(A[0, 0]) < radius
+    if N == 2:
+        # Jury test on A / radius: |det| < 1 and |trace| < 1 + det.
+        tr = (A[0, 0] + A[1, 1]) / radius
+        det = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) / (radius * radius)
+        return abs(det) < 1.0 and abs(tr) < 1.0 + det
+    ev = np.linalg.eigvals(A.astype(np.complex128))
+    return np.max(np.abs(ev)) < radius
+
+
+@njit(cache=True)
+def _clip(v, bound):
+    if v > bound:
+        return bound
+    if v < -bound:
+        return -bound
+    return v
+
+
+@njit(cache=True)
+def _inv_small(M, out):
+    """Inverse of a small symmetric positive definite matrix (d x d); returns False if singular."""
+    d = M.shape[0]
+    if d == 1:
+        if M[0, 0] <= 0.0:
+            return False
+        out[0, 0] = 1.0 / M[0, 0]
+        return True
+    if np.linalg.det(M) <= 0.0:
+        return False
+    out[:, :] = np.linalg.inv(M)
+    return True
+
+
+@njit(cache=True)
+def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, nf, owner, n_chain, Yhat):
+    """Run the RPEM recursion over ``len(Y)`` samples, updating the estimator state in place.
+
+    Parameters
+    ----------
+    WS, WH : (T, 2m) arrays
+        Inputs ``(u, u')`` for the step *into* sample t, at the step start and at the half step.
+    Y : (T, d) measured outputs.
+    theta, P, Lam, xv, S, st : estimator state (modified in place). ``P`` is the inverse of the
+        unnormalised Hessian ``R(t) / gamma(t)``.
+    cfg : float configuration (``CF_*``).
+    y_lo, y_hi : output saturation limits per output.
+    Yhat : (T, d) output buffer for the one-step predictions ``yhat(t | theta(t-1))``.
+    """
+    T = Y.shape[0]
+    d = Y.shape[1]
+    N = xv.shape[0]
+    p = theta.shape[0]
+    work = _make_work(N, p)
+    x_next = np.empty(N)
+    A = np.empty((N, N))
+    B = np.empty((N, p))
+    S_new = np.empty((N, p))
+    psi = np.empty((p, d))
+    eps = np.empty(d)
+    Ppsi = np.empty((p, d))
+    Mm = np.empty((d, d))
+    Mi = np.empty((d, d))
+    L = np.empty((p, d))
+    theta_c = np.empty(p)
+    A_c = np.empty((N, N))
+    B_dummy = np.empty((1, 1))
+    xmax = cfg[CF_XMAX]
+    smax = cfg[CF_SMAX]
+    for t in range(T):
+        if st[ST_STARTED] == 0.0:
+            for i in range(N):
+                xv[i] = 0.0
+                for j in range(p):
+                    S[i, j] = 0.0
+            for k in range(d):
+                xv[k * n_chain] = Y[t, k]
+            st[ST_STARTED] = 1.0
+        else:
+            model_step(xv, WS[t], WH[t], theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, True, work)
+            for i in range(N):
+                for j in range(p):
+                    acc = B[i, j]
+                    for c in range(N):
+                        acc += A[i, c] * S[c, j]
+                    S_new[i, j] = _clip(acc, smax)
+            for i in range(N):
+                xv[i] = _clip(x_next[i], xmax)
+                if not np.isfinite(xv[i]):
+                    xv[i] = 0.0
+                for j in range(p):
+                    S[i, j] = S_new[i, j] if np.isfinite(S_new[i, j]) else 0.0
+        for k in range(d):
+            x1 = xv[k * n_chain]
+            active = x1 <= y_lo[k] or x1 >= y_hi[k]
+            yh = min(max(x1, y_lo[k]), y_hi[k])
+            Yhat[t, k] = yh
+            eps[k] = Y[t, k] - yh
+            for j in range(p):
+                psi[j, k] = 0.0 if active else S[k * n_chain, j]
+        st[ST_COUNT] += 1.0
+        if cfg[CF_UPDATE] == 0.0:
+            continue
+        lam = cfg[CF_LAM_RATE] * st[ST_LAMBDA] + (1.0 - cfg[CF_LAM_RATE]) * cfg[CF_LAM_INF]
+        st[ST_LAMBDA] = lam
+        gamma = st[ST_GAMMA] / (st[ST_GAMMA] + lam)
+        st[ST_GAMMA] = gamma
+        for a in range(d):
+            for b in range(d):
+                Lam[a, b] += gamma * (eps[a] * eps[b] - Lam[a, b])
+        # P-form of R(t) = lambda R(t-1) + psi Lambda^-1 psi^T (matrix inversion lemma, d x d inverse only).
+        for j in range(p):
+            for k in range(d):
+                acc = 0.0
+                for c in range(p):
+                    acc += P[j, c] * psi[c, k]
+                Ppsi[j, k] = acc
+        for a in range(d):
+            for b in range(d):
+                acc = lam * Lam[a, b]
+                for j in range(p):
+                    acc += psi[j, a] * Ppsi[j, b]
+                Mm[a, b] = acc
+        if not _inv_small(Mm, Mi):
+            st[ST_REJECTED] += 1.0
+            continue
+        for j in range(p):
+            for k in range(d):
+                acc = 0.0
+                for a in range(d):
+                    acc += Ppsi[j, a] * Mi[a, k]
+                L[j, k] = acc
+        inv_lam = 1.0 / lam
+        for j in range(p):
+            for c in range(j, p):
+                acc = 0.0
+                for k in range(d):
+                    acc += L[j, k] * Ppsi[c, k]
+                v = (P[j, c] - acc) * inv_lam
+                P[j, c] = v
+                P[c, j] = v
+        ok = True
+        for j in range(p):
+            acc = theta[j]
+            for k in range(d):
+                acc += L[j, k] * eps[k]
+            theta_c[j] = acc
+            if not np.isfinite(acc):
+                ok = False
+        if ok:
+            # Projection onto DM: the linearised step at the current point must be stable with margin delta.
+            model_step(xv, WS[t], WH[t], theta_c, cfg, fvar, fpow, nf, owner, n_chain, x_next, A_c, B_dummy,
+                       False, work)
+            ok = is_stable(A_c, cfg[CF_RADIUS])
+        if ok:
+            for j in range(p):
+                theta[j] = theta_c[j]
+        else:
+            st[ST_REJECTED] += 1.0
+
+
+@njit(cache=True)
+def simulate(WS, WH, theta, x0, cfg, y_lo, y_hi, fvar, fpow, nf, owner, n_chain, d, Yhat, X):
+    """Free-run simulation from ``x0``: ``X[t]`` is the state at sample t, ``Yhat[t]`` its output."""
+    T = WS.shape[0]
+    N = x0.shape[0]
+    p = theta.shape[0]
+    work = _make_work(N, p)
+    xv = x0.copy()
+    x_next = np.empty(N)
+    A = np.empty((N, N))
+    B = np.empty((1, 1))
+    xmax = cfg[CF_XMAX]
+    for t in range(T):
+        if t > 0:
+            model_step(xv, WS[t], WH[t], theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, False, work)
+            for i in range(N):
+                xv[i] = _clip(x_next[i], xmax)
+        for i in range(N):
+            X[t, i] = xv[i]
+        for k in range(d):
+            Yhat[t, k] = min(max(xv[k * n_chain], y_lo[k]), y_hi[k])
+
+
+@njit(cache=True)
+def ekf_run(WS, WH, Y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, owner, n_chain, X):
+    """Extended Kalman filter on the state augmented with theta, ``z = (x, theta)`` (Brus and Wigren 2006).
+
+    theta is modelled as a random walk with the covariance in the lower block of ``Q``; with that block zero and
+    the theta block of ``Pz`` zero, theta stays fixed and this is a plain state filter (used for k-step
+    prediction). ``X[t]`` receives the filtered state ``x(t | t)``. ``z`` and ``Pz`` are updated in place.
+    """
+    T = Y.shape[0]
+    d = Y.shape[1]
+    nz = z.shape[0]
+    N = X.shape[1]
+    p = nz - N
+    work = _make_work(N, p)
+    x_next = np.empty(N)
+    A = np.empty((N, N))
+    B = np.empty((N, p))
+    Fz = np.zeros((nz, nz))
+    Sm = np.empty((d, d))
+    Si = np.empty((d, d))
+    K = np.empty((nz, d))
+    xmax = cfg[CF_XMAX]
+    for t in range(T):
+        if t > 0:
+            xv = z[:N].copy()
+            th = z[N:].copy()
+            model_step(xv, WS[t], WH[t], th, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, True, work)
+            Fz[:, :] = 0.0
+            for i in range(nz):
+                Fz[i, i] = 1.0
+            Fz[:N, :N] = A
+            Fz[:N, N:] = B
+            for i in range(N):
+                z[i] = _clip(x_next[i], xmax)
+            Pz[:, :] = Fz @ Pz @ Fz.T + Q
+        # Measurement update: output k observes state k * n_chain.
+        for a in range(d):
+            for b in range(d):
+                Sm[a, b] = Pz[a * n_chain, b * n_chain] + Rm[a, b]
+        if _inv_small(Sm, Si):
+            for i in range(nz):
+                for k in range(d):
+                    acc = 0.0
+                    for a in range(d):
+                        acc += Pz[i, a * n_chain] * Si[a, k]
+                    K[i, k] = acc
+            for k in range(d):
+                e = Y[t, k] - z[k * n_chain]
+                for i in range(nz):
+                    z[i] += K[i, k] * e
+            KH = np.zeros((nz, nz))
+            for i in range(nz):
+                for k in range(d):
+                    for c in range(nz):
+                        KH[i, c] += K[i, k] * Pz[k * n_chain, c]
+            Pz[:, :] = Pz - KH
+            Pz[:, :] = 0.5 * (Pz + Pz.T)
+        for i in range(N):
+            if not np.isfinite(z[i]):
+                z[i] = 0.0
+            X[t, i] = z[i]
+
+
+@njit(cache=True)
+def k_step_predict(WS, WH, Xf, theta, k, cfg, y_lo, y_hi, fvar, fpow, nf, owner, n_chain, d, Yfree, Yhat):
+    """``Yhat[t] = yhat(t | t - k)``: k model steps from the filtered state ``Xf[t - k]``; ``Yfree`` for t < k."""
+    T = WS.shape[0]
+    N = Xf.shape[1]
+    p = theta.shape[0]
+    work = _make_work(N, p)
+    x_next = np.empty(N)
+    A = np.empty((N, N))
+    B = np.empty((1, 1))
+    xmax = cfg[CF_XMAX]
+    for t in range(T):
+        if t < k:
+            for c in range(d):
+                Yhat[t, c] = Yfree[t, c]
+            continue
+        xv = Xf[t - k].copy()
+        for s in range(t - k + 1, t + 1):
+            model_step(xv, WS[s], WH[s], theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, False, work)
+            for i in range(N):
+                xv[i] = _clip(x_next[i], xmax)
+        for c in range(d):
+            Yhat[t, c] = min(max(xv[c * n_chain], y_lo[c]), y_hi[c])
