@@ -221,7 +221,7 @@ class MultipleModel:
 
         def jac(th: np.ndarray) -> np.ndarray:
             self.theta_ = th.reshape(shape)
-            yh, J = self._simulate(u, x0, jac=True)
+            _, J = self._simulate(u, x0, jac=True)
             return np.nan_to_num(-J)
 
         th0 = self.theta_.ravel().copy()
