@@ -34,8 +34,15 @@ from ident.linear._statespace import _per_input, validate_fit_data
 
 
 def quantile_edges(s: np.ndarray, n_regions: int) -> np.ndarray:
-    """Grid edges putting the same number of samples of ``s`` in each of ``n_regions`` intervals."""
-    return np.quantile(np.asarray(s, dtype=float), np.linspace(0.0, 1.0, n_regions + 1))
+    """Grid edges putting the same number of samples of ``s`` in each of ``n_regions`` intervals (equally spaced
+    edges between min and max instead if ``s`` takes few distinct values, so the edges stay increasing)."""
+    s = np.asarray(s, dtype=float)
+    if not np.all(np.isfinite(s)) or np.ptp(s) == 0:
+        raise ValueError("the scheduling signal must be finite and not constant")
+    edges = np.quantile(s, np.linspace(0.0, 1.0, n_regions + 1))
+    if np.any(np.diff(edges) <= 1e-12 * np.ptp(s)):
+        edges = np.linspace(s.min(), s.max(), n_regions + 1)
+    return edges
 
 
 def _sigmoid(z: Any, lib: Any) -> Any:

@@ -1,0 +1,86 @@
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ident.base import NotFittedError
+from ident.excitation import GBN, RandomSteps, generate_multichannel
+from ident.linear import ARX, OutputError
+from ident.metrics import compare
+from ident.multiple_model import MultipleModel, quantile_edges, validity_functions
+
+
+def scheduled_system(n: int = 1200, seed: int = 1):
+    """Pole and gain move with the scheduling input u2 (a slow operating-point signal)."""
+    u = generate_multichannel([GBN(mean_hold_s=3.0), RandomSteps(-1, 1, 5, 40)], n, 1.0, seed=seed)
+    y = np.zeros(n)
+    for t in range(1, n):
+        s = u[t - 1, 1]
+        a = 0.6 + 0.3 * np.tanh(2 * s)
+        y[t] = a * y[t - 1] + (1 - a) * (1 + 0.8 * s) * u[t - 1, 0] + 0.5 * s
+    return u, y + 0.02 * np.random.default_rng(seed).standard_normal(n)
+
+
+def test_multiple_model_beats_global_linear_models():
+    u, y = scheduled_system()
+    ue, ye, uv, yv = u[:900], y[:900], u[900:], y[900:]
+    edges = [quantile_edges(ue[:, 1], 3)]
+    fits = {}
+    for name, m in {"arx": ARX(1, 1, 1), "oe": OutputError(1, 1, 1),
+                    "mm_arx": MultipleModel([1], edges, local="arx", na=1, nb=1),
+                    "mm_oe": MultipleModel([1], edges, local="oe", na=1, nb=1, max_nfev=50)}.items():
+        m.fit(ue, ye)
+        fits[name] = compare(m, uv, yv).fit
+    assert fits["mm_arx"] > fits["arx"] + 20
+    assert fits["mm_oe"] > max(fits["oe"], fits["arx"]) + 30
+    assert fits["mm_oe"] > 80
+
+
+@settings(max_examples=30, deadline=None)
+@given(s1=st.floats(-5, 5), s2=st.floats(-5, 5), kind=st.sampled_from(["gaussian", "sigmoid"]),
+       width=st.floats(0.2, 2.0))
+def test_validity_is_a_partition_of_unity(s1, s2, kind, width):
+    phi = validity_functions([np.array([s1]), np.array([s2])], [np.array([-1.0, 0.0, 2.0]),
+                             np.array([0.0, 1.0, 2.0, 3.0])], kind, width)
+    vals = np.array([p[0] for p in phi])
+    assert len(vals) == 6
+    assert np.all(vals >= -1e-12)
+    assert vals.sum() == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("validity", ["gaussian", "sigmoid"])
+def test_casadi_and_k_step(validity):
+    u, y = scheduled_system(400, seed=2)
+    m = MultipleModel([1], [quantile_edges(u[:, 1], 2)], na=2, nb=(2, 1), nk=(1, 0), validity=validity).fit(u, y)
+    f = m.to_casadi()
+    x = m.initial_state(u, y)
+    ys = []
+    for t in range(len(u)):
+        x, yt = f(x, u[t])
+        ys.append(float(yt))
+    np.testing.assert_allclose(ys, m.predict(u, y0=y)[:, 0], atol=1e-9)
+    # the k = 1 prediction is the blended regression with measured past outputs
+    p1 = m.predict_k_step(u, y, 1)[:, 0]
+    phi = m.local_validity(u)
+    reg = np.column_stack([-y[1:-1], -y[:-2], u[1:-1, 0], u[:-2, 0], u[2:, 1], np.ones(len(u) - 2)])
+    direct = np.einsum("tr,tr->t", phi[2:], reg @ m.theta_.T)
+    np.testing.assert_allclose(p1[2:], direct, atol=1e-10)
+    # a long horizon approaches the simulation
+    assert np.abs(m.predict_k_step(u, y, 60)[100:, 0] - m.predict(u, y0=y)[100:, 0]).max() < 0.05
+
+
+def test_bad_arguments():
+    u, y = scheduled_system(200)
+    with pytest.raises(ValueError, match="increasing"):
+        MultipleModel([1], [[1.0, 0.0]]).fit(u, y)
+    with pytest.raises(ValueError, match="not an input column"):
+        MultipleModel([5], [[0.0, 1.0]]).fit(u, y)
+    with pytest.raises(ValueError, match="single-output"):
+        MultipleModel([1], [[0.0, 1.0]]).fit(u, np.column_stack([y, y]))
+    with pytest.raises(ValueError, match="too few samples"):
+        short = np.random.default_rng(0).standard_normal((20, 2))
+        MultipleModel([1], [np.linspace(-1, 1, 5)]).fit(short, y[:20])
+    with pytest.raises(ValueError, match="constant"):
+        MultipleModel([1], [[0.0, 1.0]]).fit(np.column_stack([u[:, 0], np.ones(200)]), y)
+    with pytest.raises(NotFittedError):
+        MultipleModel([1], [[0.0, 1.0]]).predict(u)
