@@ -39,7 +39,7 @@ def _names(given: Sequence[str] | None, prefix: str, n: int, what: str) -> tuple
     return names
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # own __eq__: fields hold arrays
 class IODataset:
     """A uniformly sampled MIMO input-output record.
 
@@ -133,7 +133,7 @@ class IODataset:
                 and self.input_units == other.input_units and self.output_units == other.output_units
                 and self.t0 == other.t0 and self.meta == other.meta)
 
-    __hash__ = None  # type: ignore[assignment]  # mutable-looking arrays: not hashable
+    __hash__ = None  # type: ignore[assignment]  # equality by value of arrays: not hashable
 
     # ----------------------------------------------------------------------------------------- slicing
     def _replace(self, **changes: Any) -> IODataset:

@@ -5,9 +5,9 @@
   temperature dependence, flow-dependent residence time) used to develop and test the identification code
   meanwhile. It is *not* the project's simulator and its figures must not be reported as such.
 
-Signals of both, in Paper III/IV's order: inputs ``inlet_nox`` (mol/m^3 in Paper IV's units, here ppm),
-``urea`` (AdBlue dosing, g/s... here ml/h-like units), ``inlet_temperature`` (K), ``exhaust_flow`` (kg/s);
-outputs tailpipe NOx (and, from the environment, NH3 slip and the cross-sensitive NOx sensor reading).
+Signals, in Paper III/IV's order: inputs inlet NOx, urea (AdBlue) dosing, inlet temperature (K), exhaust flow;
+outputs tailpipe NOx (the environment adds NH3 slip and the cross-sensitive NOx sensor reading). The surrogate's
+units are in :data:`INPUT_UNITS`; the environment's rollout sets its own names and units in the data set.
 """
 from __future__ import annotations
 

@@ -34,6 +34,7 @@ from ident.linear._statespace import (
     stabilize,
     validate_fit_data,
 )
+from ident.linear.statespace import StateSpaceModel
 from ident.linear.subspace import N4SID
 
 
@@ -130,8 +131,8 @@ class StateSpacePEM(LinearStateSpaceModel):
             A, B, C, D, K = start.A_, start.B_, start.C_, start.D_, start.K_
         if not self.feedthrough:
             D = np.zeros((ny, nu))
-        self.A_, self.B_, self.C_, self.D_ = A, B, C, D
-        x0 = self.initial_state(u, y) if self.estimate_x0 else np.zeros(n)
+        # x0 of the start model; a throw-away model so a failing fit leaves self unfitted
+        x0 = StateSpaceModel(A, B, C, D).initial_state(u, y) if self.estimate_x0 else np.zeros(n)
         free = {"D": bool(self.feedthrough), "K": pred, "x0": self.estimate_x0}
         y_arg = y if pred else None
         big = 1e3 * np.sqrt(np.mean(y**2) + 1.0)
