@@ -62,10 +62,9 @@ def cell_balance(theta, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamm
     r_des = k_des * e_cov * theta
     dr_des = k_des * e_cov * (1.0 + e_des_gamma * theta)
     # NH3 gas: q (y_in - y) = k_ads y (1 - theta) - r_des  ->  y = (q y_in + r_des) / (q + k_ads (1 - theta))
-    den = q + k_ads * free
-    src = q * y_nh3_in + r_des
-    y_nh3 = src / den
-    dy_nh3 = (dr_des * den + src * k_ads) / (den * den)
+    inv_den = 1.0 / (q + k_ads * free)
+    y_nh3 = (q * y_nh3_in + r_des) * inv_den
+    dy_nh3 = (dr_des + y_nh3 * k_ads) * inv_den
     r_ads = k_ads * y_nh3 * free
     dr_ads = k_ads * (dy_nh3 * free - y_nh3)
     # NO and NO2. With a = (k_std + k_n2o) theta, f = k_fast theta, n = k_no2 theta, p = k_ox_no theta:
@@ -80,19 +79,18 @@ def cell_balance(theta, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamm
     big_d = q + a
     big_e = q + n
     b = big_d * big_e + f * q * y_no2_in - big_b * f
-    disc = b * b + 4.0 * big_d * f * big_b * big_e
-    sq = sqrt(disc + 1e-300)
-    # Two algebraically equal forms of the root, each free of cancellation on its side of b = 0.
-    root_pos_b = 2.0 * big_b * big_e / (b + sq + 1e-300)
-    root_neg_b = (sq - b) / (2.0 * big_d * f + 1e-300)
-    y_no = select(b >= 0.0, root_pos_b, root_neg_b)
+    s = sqrt(b * b + 4.0 * big_d * f * big_b * big_e) + abs(b)
+    # The root is 2 B E / (b + sqrt(disc)) for b >= 0 and (sqrt(disc) - b) / (2 D f) for b < 0: each form is free
+    # of cancellation on its side, and with s = sqrt(disc) + |b| both are one division.
+    pos = b >= 0.0
+    y_no = select(pos, 2.0 * big_b * big_e, s) / (select(pos, s, 2.0 * big_d * f) + 1e-300)
     db = k_no * big_e + big_d * k_no2 + k_fast * q * y_no2_in - k_ox_no * f - big_b * k_fast
     # implicit differentiation of D f x^2 + b x - B E = 0 with respect to theta
     dpoly = (k_no * f + big_d * k_fast) * y_no * y_no + db * y_no - (k_ox_no * big_e + big_b * k_no2)
     dy_no = -dpoly / (2.0 * big_d * f * y_no + b + 1e-300)
-    g_den = big_e + f * y_no
-    y_no2 = q * y_no2_in / g_den
-    dy_no2 = -y_no2 * (k_no2 + k_fast * y_no + f * dy_no) / g_den
+    inv_g = 1.0 / (big_e + f * y_no)
+    y_no2 = q * y_no2_in * inv_g
+    dy_no2 = -y_no2 * (k_no2 + k_fast * y_no + f * dy_no) * inv_g
     r_std = k_std * theta * y_no
     dr_std = k_std * (y_no + theta * dy_no)
     r_fast = f * y_no * y_no2

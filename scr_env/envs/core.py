@@ -1,0 +1,244 @@
+"""Machinery shared by the single and the vector environment: one compiled step for B plants.
+
+:func:`env_step` advances B plants by one control interval (the physics of :mod:`scr_env.physics.kernel`), then
+computes, still in compiled code, each plant's reward terms, the episode KPI accumulators and the observation. The
+single environment calls it with B = 1, the vector environment with B = num_envs; neither has its own copy.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from scr_env.constants import NO2_MOLAR_MASS_G_MOL, NH3_MOLAR_MASS_G_MOL
+from scr_env.cycles import ExhaustTrace
+from scr_env.physics import kernel as K
+
+# columns of the per-step drive table built from an ExhaustTrace (kernel inputs plus engine power)
+D_FLOW, D_TIN, D_NOX, D_NO2F, D_POWER = range(5)
+
+# reward terms, in the order of the ``terms`` array and of ``info``
+REWARD_TERMS = ("nox_cost", "nh3_cost", "adblue_cost")
+
+# episode accumulators (per plant)
+(A_ENGINE_NOX_G, A_TAILPIPE_NOX_G, A_NH3_PPM_S, A_NH3_PEAK_PPM, A_ADBLUE_G, A_TIME_S, A_WORK_KWH, A_N_IN_MOL,
+ A_N_OUT_MOL, A_STORED0_MOL, A_NH3_G, A_N2O_G, A_UREA_N_MOL, A_STEPS) = range(14)
+N_ACC = 14
+
+# observation layout
+OBS_BASE = ("upstream_nox_ppm", "inlet_temperature_k", "exhaust_flow_mol_s", "tailpipe_nox_sensor_ppm",
+            "previous_action")
+OBS_BASE_LOW = (0.0, 0.0, 0.0, 0.0, -1.0)
+OBS_BASE_HIGH = (10000.0, 1500.0, 100.0, 10000.0, 1.0)
+NH3_SENSOR_HIGH = 10000.0
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Weights of the default economic reward, in grams of AdBlue equivalent per gram of pollutant.
+
+    reward per step = -(nox * tailpipe NOx [g, as NO2] + nh3 * NH3 slip [g] + adblue * AdBlue [g]).
+    Defaults [chosen]: one gram of tailpipe NOx costs as much as 20 g AdBlue (ANR = 1 needs about 2 g AdBlue per g
+    NOx, so dosing pays clearly), NH3 slip 60 g per g (a slip above a few ppm dominates the cost, as the Euro VI
+    10 ppm mean limit demands), AdBlue 1.
+    """
+
+    nox: float = 20.0
+    nh3: float = 60.0
+    adblue: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("nox", "nh3", "adblue"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"reward_weights.{name} must be a non-negative finite number, got {v!r}")
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.nox, self.nh3, self.adblue], dtype=np.float64)
+
+
+def drive_table(trace: ExhaustTrace, o2_fraction: float) -> np.ndarray:
+    """(n_steps, 6) float64 table: flow, inlet temperature, NOx, NO2 fraction, engine power, O2 per step."""
+    return np.ascontiguousarray(np.column_stack([
+        trace.exhaust_flow_mol_s, trace.scr_inlet_temperature_k, trace.nox_ppm, trace.no2_fraction,
+        trace.engine_power_kw, np.full(trace.n_steps, o2_fraction)]))
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def _post_one(b, inputs, power_kw, dt, out, action_norm, weights, terms, reward, acc, obs, nh3_sensor, privileged,
+              theta):
+    o = out[b]
+    flow = inputs[b, K.I_FLOW]
+    adblue = min(max(inputs[b, K.I_ADBLUE], 0.0), 1e9)
+    nox_tail_mol_s = (o[K.O_NO] + o[K.O_NO2]) * 1e-6 * flow
+    nh3_tail_mol_s = o[K.O_NH3] * 1e-6 * flow
+    nox_g = nox_tail_mol_s * NO2_MOLAR_MASS_G_MOL * dt
+    nh3_g = nh3_tail_mol_s * NH3_MOLAR_MASS_G_MOL * dt
+    adblue_g = adblue * dt
+    w = weights[b]
+    terms[b, 0] = -w[0] * nox_g
+    terms[b, 1] = -w[1] * nh3_g
+    terms[b, 2] = -w[2] * adblue_g
+    reward[b] = terms[b, 0] + terms[b, 1] + terms[b, 2]
+    a = acc[b]
+    nox_in_mol_s = inputs[b, K.I_NOX] * 1e-6 * flow
+    a[A_ENGINE_NOX_G] += nox_in_mol_s * NO2_MOLAR_MASS_G_MOL * dt
+    a[A_TAILPIPE_NOX_G] += nox_g
+    a[A_NH3_PPM_S] += o[K.O_NH3] * dt
+    a[A_NH3_PEAK_PPM] = max(a[A_NH3_PEAK_PPM], o[K.O_NH3])
+    a[A_ADBLUE_G] += adblue_g
+    a[A_TIME_S] += dt
+    a[A_WORK_KWH] += max(power_kw[b], 0.0) * dt / 3600.0
+    a[A_N_IN_MOL] += (nox_in_mol_s + o[K.O_NH3_INJ]) * dt
+    a[A_N_OUT_MOL] += (nox_tail_mol_s + nh3_tail_mol_s + 2.0 * o[K.O_N2O] * 1e-6 * flow
+                       + 2.0 * o[K.O_N2]) * dt
+    a[A_NH3_G] += nh3_g
+    a[A_N2O_G] += o[K.O_N2O] * 1e-6 * flow * 44.013 * dt  # g N2O, M = 44.013 g/mol
+    a[A_UREA_N_MOL] += o[K.O_UREA_N] * dt
+    a[A_STEPS] += 1.0
+    ob = obs[b]
+    ob[0] = min(o[K.O_UPSTREAM_NOX], 10000.0)
+    ob[1] = min(max(o[K.O_TIN_SENSOR], 0.0), 1500.0)
+    ob[2] = min(o[K.O_FLOW_EST], 100.0)
+    ob[3] = min(o[K.O_NOX_SENSOR], 10000.0)
+    ob[4] = action_norm[b]
+    i = 5
+    if nh3_sensor:
+        ob[i] = min(o[K.O_NH3_SENSOR], NH3_SENSOR_HIGH)
+        i += 1
+    if privileged:
+        th = theta[b]
+        for j in range(th.shape[0]):
+            ob[i + j] = min(max(th[j], 0.0), 1.0)
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
+def _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
+    n = lay[0]
+    theta = buf[:, lay[1]:lay[1] + n]
+    temp = buf[:, lay[2]:lay[2] + n]
+    sens = buf[:, lay[3]:lay[3] + K.N_SENSOR_STATES]
+    inputs = buf[:, lay[4]:lay[4] + 6]
+    power = buf[:, lay[5]]
+    cat_p = buf[:, lay[6]:lay[6] + 25]
+    aux_p = buf[:, lay[7]:lay[7] + K.N_AUX]
+    noise = buf[:, lay[8]:lay[8] + K.N_NOISE]
+    out = buf[:, lay[9]:lay[9] + 15]
+    action_norm = buf[:, lay[10]]
+    weights = buf[:, lay[11]:lay[11] + 3]
+    terms = buf[:, lay[12]:lay[12] + 3]
+    reward = buf[:, lay[13]]
+    acc = buf[:, lay[14]:lay[14] + N_ACC]
+    r = row_idx[b]
+    inputs[b, 0] = drive[r, D_FLOW]
+    inputs[b, 1] = drive[r, D_TIN]
+    inputs[b, 2] = drive[r, D_NOX]
+    inputs[b, 3] = drive[r, D_NO2F]
+    inputs[b, 5] = drive[r, 5]
+    power[b] = drive[r, D_POWER]
+    m = noise_idx[b]
+    for i in range(K.N_NOISE):
+        noise[b, i] = noise_tab[m, i]
+    K._plant_step_one(b, theta, temp, sens, inputs, dt, cat_p, aux_p, noise, out)
+    _post_one(b, inputs, power, dt, out, action_norm, weights, terms, reward, acc, obs, lay[15] != 0, lay[16] != 0,
+              theta)
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def _env_step_serial(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
+    for b in range(buf.shape[0]):
+        _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True, parallel=True)
+def _env_step_parallel(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
+    for b in numba.prange(buf.shape[0]):
+        _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
+
+
+# column blocks of the PlantBatch buffer: (name, width or None for n_cells)
+_BLOCKS = (("theta", None), ("temperature_k", None), ("sensor_state", K.N_SENSOR_STATES),
+           ("inputs", len(K.INPUT_FIELDS)), ("power_kw", 1), ("cat_params", 25), ("aux_params", K.N_AUX),
+           ("noise", K.N_NOISE), ("out", len(K.OUTPUT_FIELDS)), ("action_norm", 1), ("weights", 3), ("terms", 3),
+           ("reward", 1), ("acc", N_ACC))
+
+
+class PlantBatch:
+    """State and work arrays of B plants, and the one call that steps them (:meth:`step`).
+
+    All float64 arrays are column blocks of one buffer (so the compiled step takes few arguments); the attributes
+    ``theta``, ``temperature_k``, ``inputs``, ``out``, ``acc`` ... are writable views of it.
+    """
+
+    def __init__(self, n: int, n_cells: int, obs_dim: int, nh3_sensor: bool, privileged: bool) -> None:
+        self.n = n
+        offsets = []
+        col = 0
+        for name, width in _BLOCKS:
+            offsets.append(col)
+            col += n_cells if width is None else width
+        self.buf = np.zeros((n, col))
+        self.layout = np.array([n_cells, *offsets, int(bool(nh3_sensor)), int(bool(privileged))], dtype=np.int64)
+        for (name, width), off in zip(_BLOCKS, offsets):
+            w = n_cells if width is None else width
+            setattr(self, name, self.buf[:, off] if width == 1 else self.buf[:, off:off + w])
+        self.obs = np.zeros((n, obs_dim), dtype=np.float32)
+        self.nh3_sensor = bool(nh3_sensor)
+        self.privileged = bool(privileged)
+        self._parallel = n >= K.PARALLEL_MIN_BATCH
+        self.col_adblue = offsets[3] + K.I_ADBLUE
+        self.col_action = offsets[9]
+        self.col_reward = offsets[12]
+
+    def step(self, dt: float, drive: np.ndarray, row_idx: np.ndarray, noise_tab: np.ndarray,
+             noise_idx: np.ndarray) -> None:
+        """Advance every plant by ``dt``: plant b reads row ``row_idx[b]`` of ``drive`` (flow, inlet temperature,
+        NOx, NO2 fraction, power, O2) and noise row ``noise_idx[b]`` of ``noise_tab``; the AdBlue rate and
+        normalised action must already be in ``inputs[:, I_ADBLUE]`` and ``action_norm``."""
+        f = _env_step_parallel if self._parallel else _env_step_serial
+        f(self.buf, self.layout, self.obs, drive, row_idx, noise_tab, noise_idx, dt)
+
+    def initial_observation(self, b: int, upstream_nox_ppm: float, inlet_temperature_k: float, flow_mol_s: float,
+                            action_norm: float) -> None:
+        """Observation before the first step: sensors at their initial states."""
+        ob = self.obs[b]
+        ob[0] = min(max(upstream_nox_ppm, 0.0), 10000.0)
+        ob[1] = min(max(inlet_temperature_k, 0.0), 1500.0)
+        ob[2] = min(max(flow_mol_s, 0.0), 100.0)
+        ob[3] = min(max(self.sensor_state[b, 0], 0.0), 10000.0)
+        ob[4] = action_norm
+        i = 5
+        if self.nh3_sensor:
+            ob[i] = 0.0
+            i += 1
+        if self.privileged:
+            ob[i:i + self.theta.shape[1]] = np.clip(self.theta[b], 0.0, 1.0)
+
+
+def episode_kpis(acc: np.ndarray, stored_now_mol: float) -> dict[str, float]:
+    """The emission KPIs of one episode from its accumulator row (PHYSICS.md section 7)."""
+    engine_nox = float(acc[A_ENGINE_NOX_G])
+    tail_nox = float(acc[A_TAILPIPE_NOX_G])
+    work = float(acc[A_WORK_KWH])
+    time_s = float(acc[A_TIME_S])
+    n_in = float(acc[A_N_IN_MOL])
+    n_out = float(acc[A_N_OUT_MOL]) + (stored_now_mol - float(acc[A_STORED0_MOL]))
+    nan = float("nan")
+    return {
+        "nox_conversion": 1.0 - tail_nox / engine_nox if engine_nox > 0 else nan,
+        "engine_out_nox_g": engine_nox,
+        "tailpipe_nox_g": tail_nox,
+        "engine_out_nox_g_per_kwh": engine_nox / work if work > 0 else nan,
+        "tailpipe_nox_g_per_kwh": tail_nox / work if work > 0 else nan,
+        "mean_nh3_slip_ppm": float(acc[A_NH3_PPM_S]) / time_s if time_s > 0 else nan,
+        "peak_nh3_slip_ppm": float(acc[A_NH3_PEAK_PPM]),
+        "nh3_slip_g": float(acc[A_NH3_G]),
+        "n2o_g": float(acc[A_N2O_G]),
+        "adblue_g": float(acc[A_ADBLUE_G]),
+        "adblue_g_per_kwh": float(acc[A_ADBLUE_G]) / work if work > 0 else nan,
+        "engine_work_kwh": work,
+        "duration_s": time_s,
+        "nitrogen_balance_error": (n_in - n_out) / n_in if n_in > 0 else 0.0,
+    }

@@ -1,0 +1,282 @@
+"""The urea-dosing SCR environment (one catalyst)."""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from scr_env.cycles import ExhaustTrace
+from scr_env.envs import core
+from scr_env.envs.config import O2_FRACTION, EnvConfig, make_config
+from scr_env.params import pack, randomised
+from scr_env.physics import kernel as K
+
+
+class UreaSCREnv(gym.Env):
+    r"""AdBlue dosing of a Cu-zeolite SCR catalyst on a heavy-duty diesel over a drive cycle.
+
+    ## Description
+    A 12-13 L Euro VI diesel runs a drive cycle (WHTC, WHSC, a seeded random cycle or measured data); an engine-out
+    model and the thermal inertia of DOC and DPF give the exhaust at the SCR inlet (flow, temperature, NOx and its NO2
+    share). The agent sets the AdBlue (AUS 32) injection rate upstream of the catalyst every ``dt`` seconds. The
+    catalyst is a first-principles multi-cell model (NH3 storage with Temkin desorption; standard, fast and NO2 SCR;
+    NH3 oxidation to N2, NO and N2O; solid temperature per cell) calibrated to CLEERS Cu-SSZ-13 lab data
+    (``scr_env/data/catalyst``). The tailpipe NOx sensor is cross-sensitive to NH3, so the controller cannot tell NOx
+    from NH3 slip by that sensor alone.
+
+    ## Action Space
+    ``Box(-1, 1, (1,), float32)`` by default (``action_mode="normalized"``):
+
+    | action | meaning | physical value |
+    |---|---|---|
+    | a in [-1, 1] | AdBlue injection rate | (a + 1) / 2 * ``dosing.max_rate_g_s`` [g/s] (3.0 g/s default) |
+
+    With ``action_mode="physical"`` the space is ``Box(0, max_rate_g_s, (1,))`` in g/s. Out-of-range actions are
+    clipped to the bounds (the clipped value is what is injected, charged and observed); NaN, inf or a wrong shape
+    raise ``ValueError``.
+
+    ## Observation Space
+    ``Box(float32)``; what a truck measures, with lags and noise (see :class:`scr_env.params.SensorParams`):
+
+    | index | name | unit | range |
+    |---|---|---|---|
+    | 0 | upstream (engine-out) NOx sensor | ppm | 0 to 10000 |
+    | 1 | SCR inlet temperature (thermocouple, 3 s lag) | K | 0 to 1500 |
+    | 2 | exhaust flow (ECU estimate, 2 % noise) | mol/s | 0 to 100 |
+    | 3 | tailpipe NOx sensor: NO + 0.9 NO2 + 1.0 NH3, 1 s lag | ppm | 0 to 10000 |
+    | 4 | previous action (normalised) | - | -1 to 1 |
+    | 5 | tailpipe NH3 sensor (only with ``nh3_sensor=True``) | ppm | 0 to 10000 |
+    | next N | NH3 coverage of each cell (only with ``privileged=True``; never measurable) | - | 0 to 1 |
+
+    ## Rewards
+    An economic cost in grams of AdBlue equivalent (weights ``reward_weights``, see
+    :class:`scr_env.envs.core.RewardWeights`): per step
+    ``r = -(20 * tailpipe NOx [g as NO2] + 60 * NH3 slip [g] + 1 * AdBlue [g])``. Each term is in ``info``
+    (``nox_cost``, ``nh3_cost``, ``adblue_cost``, all <= 0).
+
+    ## Starting State
+    Hot start by default: the cells at the SCR inlet temperature of the first sample, NH3 coverage
+    ``initial_coverage`` (0 by default); ``cold_start=True`` starts the aftertreatment at 298.15 K (cold WHTC).
+    ``reset(options=...)`` accepts ``cold_start`` (bool), ``initial_coverage`` (float in [0, 1]) and, for the
+    ``"random"`` cycle, ``cycle_seed`` (int). Sensor noise and the random cycle come from ``self.np_random``.
+
+    ## Episode End
+    Truncation at the end of the drive cycle (3600 steps for the WHTC at 0.5 s). The episode never terminates.
+    At the truncating step ``info["episode_kpis"]`` holds ``nox_conversion``, ``engine_out_nox_g_per_kwh``,
+    ``tailpipe_nox_g_per_kwh``, ``mean_nh3_slip_ppm``, ``peak_nh3_slip_ppm``, ``adblue_g``, ``engine_work_kwh`` and
+    more (see :func:`scr_env.envs.core.episode_kpis`). Stepping after truncation without ``reset`` raises.
+
+    ## Arguments
+    ``gymnasium.make("scr_env/UreaSCR-v0", **kwargs)`` with:
+
+    | argument | default | meaning |
+    |---|---|---|
+    | cycle | "whtc" | "whtc", "whsc", "random" (new seeded cycle each reset), a CSV path, or an ExhaustTrace |
+    | catalyst | "cu_zeolite" | preset name or :class:`~scr_env.params.CatalystParams` |
+    | dt | 0.5 | control interval [s] (the thesis data: 0.5 s) |
+    | ageing | 0.0 | catalyst ageing severity in [0, 1] (:func:`scr_env.params.aged`) |
+    | sensor_noise | True | False removes sensor noise (lags stay) |
+    | sensors, dosing | defaults | :class:`~scr_env.params.SensorParams`, :class:`~scr_env.params.DosingParams` |
+    | reward_weights | None | dict with keys nox, nh3, adblue |
+    | action_mode | "normalized" | or "physical" (g/s) |
+    | nh3_sensor | False | add a tailpipe NH3 sensor to the observation |
+    | privileged | False | add the cell coverages to the observation (oracles, debugging) |
+    | cold_start | False | aftertreatment starts at ambient temperature |
+    | randomize | 0.0 | domain randomisation spread (e.g. 0.2 = +/-20 %) of capacity, activity and volume per reset |
+    | initial_coverage | 0.0 | NH3 coverage at reset |
+    | render_mode | None | "rgb_array" or "human": plot of the episode so far |
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 4}
+
+    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.render_mode = render_mode
+        self.config: EnvConfig = make_config(**kwargs)
+        cfg = self.config
+        self.dt = cfg.dt
+        self.max_rate_g_s = cfg.dosing.max_rate_g_s
+        if cfg.action_mode == "normalized":
+            self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+        else:
+            self.action_space = spaces.Box(0.0, np.float32(self.max_rate_g_s), shape=(1,), dtype=np.float32)
+        low, high = cfg.obs_bounds()
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.observation_names = cfg.obs_names
+        self._batch = core.PlantBatch(1, cfg.catalyst.n_cells, low.size, cfg.nh3_sensor, cfg.privileged)
+        self._batch.aux_params[0] = K.pack_aux(cfg.dosing, cfg.sensors)
+        self._batch.weights[0] = cfg.reward_weights.as_array()
+        self._base_params = pack(cfg.effective_catalyst)
+        self._fixed_trace: ExhaustTrace | None = None
+        if cfg.cycle != "random":
+            self._fixed_trace = cfg.trace(cfg.cycle, None, cfg.cold_start)
+        self.trace: ExhaustTrace | None = None
+        self._drive = np.zeros((0, 6))
+        self._noise = np.zeros((0, K.N_NOISE))
+        self._k = 0
+        self._n = 0
+        self._row = np.zeros(1, dtype=np.int64)
+        self._nox_list: list[float] = []
+        self._needs_reset = True
+        self._history: list[tuple[float, ...]] = []
+        self._fig = None
+
+    # ------------------------------------------------------------------------------------------------- reset/step
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        cfg = self.config
+        options = dict(options or {})
+        unknown = set(options) - {"cold_start", "initial_coverage", "cycle_seed"}
+        if unknown:
+            raise ValueError(f"options has unknown keys {sorted(unknown)}; use cold_start, initial_coverage, cycle_seed")
+        cold = bool(options.get("cold_start", cfg.cold_start))
+        coverage = float(options.get("initial_coverage", cfg.initial_coverage))
+        if not (math.isfinite(coverage) and 0.0 <= coverage <= 1.0):
+            raise ValueError(f"options['initial_coverage'] must be in [0, 1], got {coverage!r}")
+        if cfg.cycle == "random":
+            cycle_seed = options.get("cycle_seed")
+            if cycle_seed is None:
+                cycle_seed = int(self.np_random.integers(0, 2**31 - 1))
+            self.trace = cfg.trace("random", int(cycle_seed), cold)
+        elif cold != cfg.cold_start:
+            self.trace = cfg.trace(cfg.cycle, None, cold)
+        else:
+            self.trace = self._fixed_trace
+        tr = self.trace
+        self._drive = core.drive_table(tr, O2_FRACTION)
+        self._nox_list = tr.nox_ppm.tolist()
+        self._n = tr.n_steps
+        self._noise = self.np_random.standard_normal((self._n, K.N_NOISE))
+        b = self._batch
+        if cfg.randomize > 0:
+            from scr_env.params import aged
+
+            cat = randomised(cfg.catalyst, self.np_random, cfg.randomize)
+            b.cat_params[0] = pack(aged(cat, cfg.ageing) if cfg.ageing > 0 else cat)
+        else:
+            b.cat_params[0] = self._base_params
+        t0 = float(tr.scr_inlet_temperature_k[0])
+        b.theta[0] = coverage
+        b.temperature_k[0] = cfg.catalyst.ambient_temperature_k if cold else t0
+        nox0 = float(tr.nox_ppm[0])
+        no2f0 = float(tr.no2_fraction[0])
+        b.sensor_state[0] = (nox0 * (1.0 - no2f0) + cfg.sensors.nox_sensor_no2_gain * nox0 * no2f0, 0.0, t0)
+        b.acc[0] = 0.0
+        b.acc[0, core.A_STORED0_MOL] = float(b.theta[0].sum() * b.cat_params[0, 1])
+        b.initial_observation(0, nox0, t0, float(tr.exhaust_flow_mol_s[0]), self._to_norm(0.0))
+        self._k = 0
+        self._needs_reset = False
+        self._history = []
+        if self.render_mode is not None:
+            self._record(0.0, nox0, nox0, 0.0, 0.0, t0, coverage)
+        return b.obs[0].copy(), {"cycle": tr.name, "n_steps": self._n, "dt": self.dt}
+
+    def _to_norm(self, rate_g_s: float) -> float:
+        return 2.0 * rate_g_s / self.max_rate_g_s - 1.0
+
+    def _dose(self, action: Any) -> tuple[float, float]:
+        """(AdBlue rate g/s, normalised action) from an action after validation and clipping."""
+        if type(action) is np.ndarray and action.shape == (1,):
+            v = float(action[0])
+        else:
+            arr = np.asarray(action, dtype=np.float64) if not isinstance(action, (int, float)) else np.float64(action)
+            if arr.size != 1 or arr.ndim > 1:
+                raise ValueError(f"action must have shape (1,), got shape {np.shape(action)}")
+            v = float(arr.reshape(-1)[0])
+        if not math.isfinite(v):
+            raise ValueError(f"action must be finite, got {v!r}")
+        if self.config.action_mode == "normalized":
+            a = -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
+            return 0.5 * (a + 1.0) * self.max_rate_g_s, a
+        rate = 0.0 if v < 0.0 else (self.max_rate_g_s if v > self.max_rate_g_s else v)
+        return rate, self._to_norm(rate)
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        if self._needs_reset:
+            raise RuntimeError("the episode has ended (or never started): call reset() before step()")
+        rate, a_norm = self._dose(action)
+        b = self._batch
+        k = self._k
+        buf = b.buf
+        buf[0, b.col_adblue] = rate
+        buf[0, b.col_action] = a_norm
+        self._row[0] = k
+        b.step(self.dt, self._drive, self._row, self._noise, self._row)
+        self._k = k + 1
+        truncated = self._k >= self._n
+        out = b.out[0].tolist()
+        terms = b.terms[0].tolist()
+        info = {
+            "nox_cost": terms[0], "nh3_cost": terms[1], "adblue_cost": terms[2],
+            "tailpipe_nox_ppm": out[K.O_NO] + out[K.O_NO2], "tailpipe_nh3_ppm": out[K.O_NH3],
+            "engine_out_nox_ppm": self._nox_list[k], "adblue_g_s": rate, "time_s": self._k * self.dt,
+        }
+        if self.render_mode is not None:
+            self._record(self._k * self.dt, info["engine_out_nox_ppm"], info["tailpipe_nox_ppm"],
+                         info["tailpipe_nh3_ppm"], rate, float(self._drive[k, 1]), out[K.O_COV])
+        if truncated:
+            self._needs_reset = True
+            info["episode_kpis"] = core.episode_kpis(b.acc[0], float(out[K.O_STORED]))
+        return b.obs[0].copy(), buf[0, b.col_reward], False, truncated, info
+
+    # ------------------------------------------------------------------------------------------- introspection
+    @property
+    def state(self) -> dict[str, np.ndarray]:
+        """Privileged plant state (copies): cell coverages [-] and solid temperatures [K], sensor lag states."""
+        b = self._batch
+        return {"nh3_coverage": b.theta[0].copy(), "temperature_k": b.temperature_k[0].copy(),
+                "sensor_state": b.sensor_state[0].copy()}
+
+    @property
+    def step_index(self) -> int:
+        """Number of steps taken in this episode."""
+        return self._k
+
+    @property
+    def catalyst_params_array(self) -> np.ndarray:
+        """Packed parameters of the catalyst of this episode (after ageing and randomisation)."""
+        return self._batch.cat_params[0].copy()
+
+    def disturbance_preview(self, horizon: int) -> np.ndarray:
+        """The next ``horizon`` rows of (flow mol/s, inlet temperature K, NOx ppm, NO2 fraction) of the cycle, the
+        last row repeated past its end: the cycle preview an MPC may be given (privileged information)."""
+        idx = np.minimum(np.arange(self._k, self._k + int(horizon)), max(self._n - 1, 0))
+        return self._drive[idx, :4].copy()
+
+    # --------------------------------------------------------------------------------------------------- render
+    def _record(self, t: float, nox_in: float, nox_out: float, nh3_out: float, rate: float, t_in: float,
+                cov: float) -> None:
+        self._history.append((t, nox_in, nox_out, nh3_out, rate, t_in, cov))
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        from scr_env.envs.rendering import episode_figure, figure_to_rgb
+
+        import matplotlib.pyplot as plt
+
+        if self.render_mode == "rgb_array":
+            fig = episode_figure(np.asarray(self._history))
+            image = figure_to_rgb(fig)
+            plt.close(fig)
+            return image
+        fig = episode_figure(np.asarray(self._history), self._fig)
+
+        self._fig = fig
+        plt.pause(0.001)
+        return None
+
+    def close(self) -> None:
+        if self._fig is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._fig)
+            self._fig = None

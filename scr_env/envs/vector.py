@@ -1,0 +1,252 @@
+"""The native vector environment: N catalysts stepped by one call of the compiled physics."""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from scr_env.cycles import ExhaustTrace
+from scr_env.envs import core
+from scr_env.envs.config import O2_FRACTION, make_config
+from scr_env.params import aged, pack, randomised
+from scr_env.physics import kernel as K
+
+
+class UreaSCRVectorEnv(VectorEnv):
+    """``num_envs`` independent SCR plants (see :class:`scr_env.envs.urea_scr.UreaSCREnv` for the spec of one).
+
+    Every step advances all plants with one call of the same compiled kernel the single environment uses (run on
+    several threads for large batches). Create it with
+    ``gymnasium.make_vec("scr_env/UreaSCR-v0", num_envs=N, vectorization_mode="vector_entry_point", **kwargs)``.
+
+    Beyond the single environment's arguments:
+
+    | argument | default | meaning |
+    |---|---|---|
+    | num_envs | 1 | number of plants |
+    | cycle | "whtc" | one cycle for all plants, or a sequence of ``num_envs`` cycles (names, paths, ExhaustTraces) |
+    | random_offsets | False | start each episode at a random step of its cycle, so plants are not in lockstep |
+    | random_cycle_pool | 32 | with cycle "random": size of the pool of seeded random cycles drawn from at each reset |
+
+    Autoreset: ``AutoresetMode.SAME_STEP``. When a plant's cycle ends, the step returns its reset observation, with
+    ``infos["final_obs"][i]`` and ``infos["final_info"]`` (holding ``episode_kpis``) for the ended plants.
+    Per-step ``infos`` hold arrays ``nox_cost``, ``nh3_cost``, ``adblue_cost``, ``tailpipe_nox_ppm``,
+    ``tailpipe_nh3_ppm``, ``adblue_g_s`` and ``step_index``.
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, num_envs: int = 1, cycle: Any = "whtc", random_offsets: bool = False,
+                 random_cycle_pool: int = 32, render_mode: str | None = None, **kwargs: Any) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if render_mode is not None:
+            raise ValueError("the vector environment does not render; use the single environment for plots")
+        if isinstance(random_cycle_pool, bool) or not isinstance(random_cycle_pool, (int, np.integer)) \
+                or random_cycle_pool < 1:
+            raise ValueError(f"random_cycle_pool must be a positive integer, got {random_cycle_pool!r}")
+        self.num_envs = int(num_envs)
+        if isinstance(cycle, (list, tuple)):
+            if len(cycle) != self.num_envs:
+                raise ValueError(f"cycle: a sequence of cycles must have num_envs = {self.num_envs} entries, "
+                                 f"got {len(cycle)}")
+            cycles = list(cycle)
+        else:
+            cycles = [cycle] * self.num_envs
+        self._configs = {}
+        for c in cycles:
+            key = self._key(c)
+            if key not in self._configs:
+                self._configs[key] = make_config(cycle=c, **kwargs)
+        self._cycle_keys = [self._key(c) for c in cycles]
+        cfg = self._configs[self._cycle_keys[0]]
+        self.config = cfg
+        self.dt = cfg.dt
+        self.max_rate_g_s = cfg.dosing.max_rate_g_s
+        self.random_offsets = bool(random_offsets)
+        self.random_cycle_pool = int(random_cycle_pool)
+        self.render_mode = None
+        if cfg.action_mode == "normalized":
+            self.single_action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+        else:
+            self.single_action_space = spaces.Box(0.0, np.float32(self.max_rate_g_s), shape=(1,), dtype=np.float32)
+        low, high = cfg.obs_bounds()
+        self.single_observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.observation_names = cfg.obs_names
+        n = self.num_envs
+        self._batch = core.PlantBatch(n, cfg.catalyst.n_cells, low.size, cfg.nh3_sensor, cfg.privileged)
+        self._batch.aux_params[:] = K.pack_aux(cfg.dosing, cfg.sensors)
+        self._batch.weights[:] = cfg.reward_weights.as_array()
+        self._base_params = pack(cfg.effective_catalyst)
+        self._traces: list[ExhaustTrace] = []
+        self._flat = np.zeros((0, 6))
+        self._trace_base = np.zeros(0, dtype=np.int64)
+        self._trace_len = np.zeros(0, dtype=np.int64)
+        self._fixed_index: dict[str, int] = {}
+        self._pool_index: list[int] = []
+        self._env_trace = np.zeros(n, dtype=np.int64)
+        self._base = np.zeros(n, dtype=np.int64)
+        self._len = np.zeros(n, dtype=np.int64)
+        self._k = np.zeros(n, dtype=np.int64)
+        self._ones = np.ones(n, dtype=bool)
+        self._row = np.zeros(n, dtype=np.int64)
+        self._noise = np.zeros((n, K.N_NOISE))
+        self._noise_idx = np.arange(n, dtype=np.int64)
+        self._needs_reset = True
+        self._rng_ready = False
+
+    @staticmethod
+    def _key(cycle: Any) -> str:
+        return f"trace:{id(cycle)}" if isinstance(cycle, ExhaustTrace) else f"name:{cycle}"
+
+    # ----------------------------------------------------------------------------------------------- cycles
+    def _build_traces(self, seed_rng: np.random.Generator) -> None:
+        traces: list[ExhaustTrace] = []
+        self._fixed_index = {}
+        self._pool_index = []
+        for key, cfg in self._configs.items():
+            if cfg.cycle == "random":
+                if not self._pool_index:
+                    seeds = seed_rng.integers(0, 2**31 - 1, size=self.random_cycle_pool)
+                    for s in seeds:
+                        self._pool_index.append(len(traces))
+                        traces.append(cfg.trace("random", int(s), cfg.cold_start))
+            else:
+                self._fixed_index[key] = len(traces)
+                traces.append(cfg.trace(cfg.cycle, None, cfg.cold_start))
+        self._traces = traces
+        tables = [core.drive_table(t, O2_FRACTION) for t in traces]
+        self._trace_len = np.array([t.shape[0] for t in tables], dtype=np.int64)
+        self._trace_base = np.concatenate([[0], np.cumsum(self._trace_len)[:-1]]).astype(np.int64)
+        self._flat = np.ascontiguousarray(np.concatenate(tables, axis=0))
+
+    def _reset_envs(self, idx: np.ndarray, options: dict[str, Any]) -> None:
+        """Start new episodes for the plants ``idx`` (in place; writes their observations)."""
+        b = self._batch
+        rng = self.np_random
+        coverage = float(options.get("initial_coverage", self.config.initial_coverage))
+        if not (np.isfinite(coverage) and 0.0 <= coverage <= 1.0):
+            raise ValueError(f"options['initial_coverage'] must be in [0, 1], got {coverage!r}")
+        for i in idx:
+            key = self._cycle_keys[i]
+            cfg = self._configs[key]
+            if cfg.cycle == "random":
+                t = self._pool_index[int(rng.integers(len(self._pool_index)))]
+            else:
+                t = self._fixed_index[key]
+            self._env_trace[i] = t
+            length = int(self._trace_len[t])
+            offset = int(rng.integers(0, max(length // 2, 1))) if self.random_offsets else 0
+            self._base[i] = self._trace_base[t] + offset
+            self._len[i] = length - offset
+            self._k[i] = 0
+            if cfg.randomize > 0:
+                cat = randomised(cfg.catalyst, rng, cfg.randomize)
+                b.cat_params[i] = pack(aged(cat, cfg.ageing) if cfg.ageing > 0 else cat)
+            else:
+                b.cat_params[i] = self._base_params
+            row = self._flat[self._base[i]]
+            t0 = float(row[core.D_TIN])
+            cold = cfg.cold_start and offset == 0
+            b.theta[i] = coverage
+            b.temperature_k[i] = cfg.catalyst.ambient_temperature_k if cold else t0
+            nox0, no2f = float(row[core.D_NOX]), float(row[core.D_NO2F])
+            b.sensor_state[i] = (nox0 * (1.0 - no2f) + cfg.sensors.nox_sensor_no2_gain * nox0 * no2f, 0.0, t0)
+            b.acc[i] = 0.0
+            b.acc[i, core.A_STORED0_MOL] = float(b.theta[i].sum() * b.cat_params[i, 1])
+            b.initial_observation(int(i), nox0, t0, float(row[core.D_FLOW]), -1.0)
+
+    # ----------------------------------------------------------------------------------------------- API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = set(options) - {"initial_coverage", "reset_mask"}
+        if unknown:
+            raise ValueError(f"options has unknown keys {sorted(unknown)}; use initial_coverage, reset_mask")
+        if seed is not None or not self._rng_ready:
+            self._build_traces(np.random.default_rng(self.np_random.integers(0, 2**63 - 1)))
+            self._rng_ready = True
+        mask = options.get("reset_mask")
+        if mask is None:
+            idx = np.arange(self.num_envs)
+        else:
+            mask = np.asarray(mask, dtype=bool)
+            if mask.shape != (self.num_envs,):
+                raise ValueError(f"options['reset_mask'] must have shape ({self.num_envs},), got {mask.shape}")
+            idx = np.flatnonzero(mask)
+        self._reset_envs(idx, options)
+        self._needs_reset = False
+        names = np.array([self._traces[t].name for t in self._env_trace], dtype=object)
+        return self._batch.obs.copy(), {"cycle": names, "_cycle": self._ones.copy()}
+
+    def _actions(self, actions: Any) -> tuple[np.ndarray, np.ndarray]:
+        a = np.asarray(actions, dtype=np.float64)
+        if a.shape not in ((self.num_envs, 1), (self.num_envs,)):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 1), got {a.shape}")
+        a = a.reshape(self.num_envs)
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"actions must be finite; NaN or inf at envs {np.flatnonzero(~np.isfinite(a))[:10]}")
+        if self.config.action_mode == "normalized":
+            norm = np.clip(a, -1.0, 1.0)
+            rate = 0.5 * (norm + 1.0) * self.max_rate_g_s
+        else:
+            rate = np.clip(a, 0.0, self.max_rate_g_s)
+            norm = 2.0 * rate / self.max_rate_g_s - 1.0
+        return rate, norm
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        if self._needs_reset:
+            raise RuntimeError("call reset() before step()")
+        rate, norm = self._actions(actions)
+        b = self._batch
+        b.inputs[:, K.I_ADBLUE] = rate
+        b.action_norm[:] = norm
+        np.add(self._base, self._k, out=self._row)
+        self.np_random.standard_normal(out=self._noise)
+        b.step(self.dt, self._flat, self._row, self._noise, self._noise_idx)
+        self._k += 1
+        truncated = self._k >= self._len
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        out = b.out
+        ones = self._ones
+        infos: dict[str, Any] = {
+            "nox_cost": b.terms[:, 0].copy(), "_nox_cost": ones,
+            "nh3_cost": b.terms[:, 1].copy(), "_nh3_cost": ones,
+            "adblue_cost": b.terms[:, 2].copy(), "_adblue_cost": ones,
+            "tailpipe_nox_ppm": out[:, K.O_NO] + out[:, K.O_NO2], "_tailpipe_nox_ppm": ones,
+            "tailpipe_nh3_ppm": out[:, K.O_NH3].copy(), "_tailpipe_nh3_ppm": ones,
+            "adblue_g_s": rate, "_adblue_g_s": ones,
+            "step_index": self._k.copy(), "_step_index": ones,
+        }
+        rewards = b.reward.copy()
+        if truncated.any():
+            ended = np.flatnonzero(truncated)
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            final_info: dict[str, Any] = {}
+            for i in ended:
+                final_obs[i] = b.obs[i].copy()
+                kpis = core.episode_kpis(b.acc[i], float(out[i, K.O_STORED]))
+                final_info = self._add_info(final_info, {"episode_kpis": kpis}, int(i))
+            mask = np.zeros(self.num_envs, dtype=bool)
+            mask[ended] = True
+            infos["final_obs"] = final_obs
+            infos["_final_obs"] = mask
+            infos["final_info"] = final_info
+            infos["_final_info"] = mask
+            self._reset_envs(ended, {})
+        return b.obs.copy(), rewards, terminated, truncated, infos
+
+    @property
+    def state(self) -> dict[str, np.ndarray]:
+        """Privileged states of all plants (copies): coverages and temperatures, shape (num_envs, n_cells)."""
+        return {"nh3_coverage": self._batch.theta.copy(), "temperature_k": self._batch.temperature_k.copy()}
+
+    def close_extras(self, **kwargs: Any) -> None:
+        pass
+
+
