@@ -3,7 +3,6 @@ nonlinear ODE model (Wigren 2006; thesis Papers I-III, ALGORITHMS.md section 1).
 from __future__ import annotations
 
 import inspect
-import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -11,15 +10,15 @@ from typing import Any
 import numpy as np
 
 from ident.base import as_2d, check_is_fitted, check_same_length
+from ident.io import load_model, register_model, save_model
 from ident.metrics import fit_percent
 from ident.rpem import kernel
 from ident.rpem.kalman_init import ekf_initial_theta, ekf_state_estimates, kalman_options
 from ident.rpem.regressors import polynomial_terms
 from ident.rpem.structure import ChainStructure, apply_input_transforms, method_code
 
-_FORMAT = "ident.rpem.RecursivePEM/1"
 
-
+@register_model("rpem")
 class RecursivePEM:
     """Recursive prediction error method on an n-state chain model with a polynomial right-hand side.
 
@@ -31,8 +30,9 @@ class RecursivePEM:
     follow the Gauss-Newton recursion of ALGORITHMS.md section 1 with the gain from a forgetting factor
     ``lambda(t) = rate * lambda(t-1) + (1 - rate) * final`` (``final = 1``: the gain decays like 1/t;
     ``final < 1``: a tracking estimator for a drifting plant). Each candidate update is projected onto the
-    model set DM: it is refused (theta keeps its previous value) unless the linearisation of the discretised step
-    at the current state and input has spectral radius below ``1 - stability_margin``. The state and the
+    model set DM: it is refused (theta keeps its previous value) unless, at the current state and input, the
+    continuous-time linearisation ``dF/dx`` has every eigenvalue with real part below ``-stability_margin`` (in
+    the model's scaled time) and the discretised step's Jacobian has spectral radius below 1. The state and the
     sensitivities are clipped to ``state_bound`` and ``sensitivity_bound``, so the recursion cannot diverge.
 
     Parameters
@@ -58,7 +58,7 @@ class RecursivePEM:
         Input used at the midpoint half step: the held value (zero-order-hold inputs, the default) or the mean of
         two samples (samples of a smooth signal).
     stability_margin : float
-        delta of the model set DM.
+        delta of the model set DM (a real-part margin on the scaled time axis; see above).
     theta0 : array_like, optional
         Initial parameters (zeros if omitted).
     R0, Lambda0 : float
@@ -203,7 +203,7 @@ class RecursivePEM:
         cfg[kernel.CF_METHOD] = method_code(self.method)
         cfg[kernel.CF_LAM_RATE] = self.forgetting_rate
         cfg[kernel.CF_LAM_INF] = self.forgetting_final
-        cfg[kernel.CF_RADIUS] = 1.0 - self.stability_margin
+        cfg[kernel.CF_MARGIN] = self.stability_margin
         cfg[kernel.CF_XMAX] = self.state_bound
         cfg[kernel.CF_SMAX] = self.sensitivity_bound
         cfg[kernel.CF_UPDATE] = 1.0 if update else 0.0
@@ -418,59 +418,53 @@ class RecursivePEM:
 
         return to_casadi(self)
 
-    # ------------------------------------------------------------------ persistence
-    def save(self, path: str | Path) -> Path:
-        """Write ``<path>.json`` (constructor arguments, terms) and ``<path>.npz`` (arrays); returns the JSON path."""
-        check_is_fitted(self, "theta_")
-        base = Path(path)
-        base = base.with_suffix("") if base.suffix in (".json", ".npz") else base
-        base.parent.mkdir(parents=True, exist_ok=True)
+    # ------------------------------------------------------------------ persistence (ident.io, JSON + NPZ)
+    def _get_state(self) -> tuple[dict, dict[str, np.ndarray]]:
         params = self.get_params()
-        # Saved as one list per output with global state numbering, which reloads to the same structure.
+        # Terms are saved as one list per output with global state numbering, which reloads to the same structure.
         names = np.array(self.terms_, dtype=object)
-        params["terms"] = [list(names[self.structure_.owner == k]) for k in range(self.n_outputs_)]
+        params["terms"] = [[str(t) for t in names[self.structure_.owner == k]] for k in range(self.n_outputs_)]
         params["theta0"] = None if self.theta0 is None else [float(v) for v in np.ravel(self.theta0)]
-        params["input_transforms"] = ({str(k): [v[0], float(v[1])] for k, v in self.input_transforms.items()}
+        params["input_transforms"] = ({str(k): [str(v[0]), float(v[1])] for k, v in self.input_transforms.items()}
                                       if self.input_transforms else None)
-        params["derivative_inputs"] = list(self.derivative_inputs)
+        params["derivative_inputs"] = [int(v) for v in self.derivative_inputs]
         if self.output_limits is not None:
             params["output_limits"] = np.asarray(self.output_limits, dtype=float).tolist()
-        meta = {"format": _FORMAT, "params": params, "n_inputs": self.n_inputs_, "n_outputs": self.n_outputs_}
-        json_path = base.with_suffix(".json")
-        json_path.write_text(json.dumps(meta, indent=2, default=_json_default))
-        np.savez(base.with_suffix(".npz"), theta=self.theta_, P=self.P_, Lambda=self.Lambda_, x=self.x_,
-                 sensitivity=self.sensitivity_, st=self._st, theta_init=self.theta_init_)
-        return json_path
+        meta = {"params": params, "n_inputs": self.n_inputs_, "n_outputs": self.n_outputs_}
+        arrays = {"theta": self.theta_, "P": self.P_, "Lambda": self.Lambda_, "x": self.x_,
+                  "sensitivity": self.sensitivity_, "st": self._st, "theta_init": self.theta_init_}
+        return meta, arrays
 
     @classmethod
-    def load(cls, path: str | Path) -> RecursivePEM:
-        """Inverse of :meth:`save` (the recursion can continue with :meth:`partial_fit`)."""
-        base = Path(path)
-        base = base.with_suffix("") if base.suffix in (".json", ".npz") else base
-        meta = json.loads(base.with_suffix(".json").read_text())
-        if meta.get("format") != _FORMAT:
-            raise ValueError(f"{base}.json is not a saved RecursivePEM (format {meta.get('format')!r})")
-        params = meta["params"]
+    def _from_state(cls, meta: dict, arrays: dict[str, np.ndarray]) -> RecursivePEM:
+        params = dict(meta["params"])
         if params.get("input_transforms"):
             params["input_transforms"] = {int(k): tuple(v) for k, v in params["input_transforms"].items()}
         est = cls(**params)
         est._setup(int(meta["n_inputs"]), int(meta["n_outputs"]))
-        with np.load(base.with_suffix(".npz"), allow_pickle=False) as arr:
-            est._reset_recursion(arr["theta"])
-            est.P_ = arr["P"].copy()
-            est.Lambda_ = arr["Lambda"].copy()
-            est.x_ = arr["x"].copy()
-            est.sensitivity_ = arr["sensitivity"].copy()
-            est._st = arr["st"].copy()
-            est.theta_init_ = arr["theta_init"].copy()
+        est._reset_recursion(arrays["theta"])
+        est.P_ = arrays["P"].copy()
+        est.Lambda_ = arrays["Lambda"].copy()
+        est.x_ = arrays["x"].copy()
+        est.sensitivity_ = arrays["sensitivity"].copy()
+        est._st = arrays["st"].astype(float).copy()
+        est.theta_init_ = arrays["theta_init"].copy()
         # The carried-over input is not saved: the next partial_fit restarts x from its first output sample.
         est._st[kernel.ST_STARTED] = 0.0
+        est.n_samples_seen_ = int(est._st[kernel.ST_COUNT])
+        est.n_rejected_ = int(est._st[kernel.ST_REJECTED])
         return est
 
+    def save(self, path: str | Path) -> Path:
+        """Write ``<path>.json`` (constructor arguments, terms) and ``<path>.npz`` (arrays) via
+        :func:`ident.io.save_model`; returns the JSON path."""
+        check_is_fitted(self, "theta_")
+        return save_model(self, path)
 
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(f"cannot serialise {type(obj).__name__}")
+    @classmethod
+    def load(cls, path: str | Path) -> RecursivePEM:
+        """Inverse of :meth:`save` (the recursion can continue with :meth:`partial_fit`)."""
+        est = load_model(path)
+        if not isinstance(est, cls):
+            raise ValueError(f"{path} holds a {type(est).__name__}, not a {cls.__name__}")
+        return est

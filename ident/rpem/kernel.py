@@ -35,7 +35,7 @@ CF_TS = 0  # scaled sampling period alpha * T
 CF_METHOD = 1  # EULER or MIDPOINT
 CF_LAM_RATE = 2  # lambda0 in lambda(t) = lambda0 lambda(t-1) + (1 - lambda0) lambda_inf
 CF_LAM_INF = 3  # limit of the forgetting factor (1: gain ~ 1/t; < 1: tracking)
-CF_RADIUS = 4  # 1 - delta: largest allowed spectral radius of the linearised step
+CF_MARGIN = 4  # delta: eigenvalues of the continuous-time linearisation must have real part < -delta
 CF_XMAX = 5  # bound on |x|
 CF_SMAX = 6  # bound on |dx/dtheta|
 CF_UPDATE = 7  # 1: run the parameter update, 0: only propagate (evaluation)
@@ -143,6 +143,21 @@ def model_step(xv, ws, wh, theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A
 def _make_work(N, p):
     return (np.empty(N), np.empty((N, N)), np.empty((N, p)), np.empty(N), np.empty((N, N)), np.empty((N, p)),
             np.empty(p), np.empty((p, N)), np.empty(N), np.empty((N, N)))
+
+
+@njit(cache=True)
+def is_hurwitz(J, margin):
+    """True if every eigenvalue of ``J`` has real part below ``-margin``."""
+    N = J.shape[0]
+    if N == 1:
+        return J[0, 0] < -margin
+    if N == 2:
+        # J + margin I is Hurwitz iff its trace is negative and its determinant positive.
+        tr = J[0, 0] + J[1, 1] + 2.0 * margin
+        det = (J[0, 0] + margin) * (J[1, 1] + margin) - J[0, 1] * J[1, 0]
+        return tr < 0.0 and det > 0.0
+    ev = np.linalg.eigvals(J.astype(np.complex128))
+    return np.max(ev.real) < -margin
 
 
 @njit(cache=True)
@@ -300,10 +315,11 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
             if not np.isfinite(acc):
                 ok = False
         if ok:
-            # Projection onto DM: the linearised step at the current point must be stable with margin delta.
+            # Projection onto DM: the continuous-time linearisation at the current point must have its
+            # eigenvalues left of -delta, and the discretised step must be stable (work[1] holds J(x, u)).
             model_step(xv, WS[t], WH[t], theta_c, cfg, fvar, fpow, nf, owner, n_chain, x_next, A_c, B_dummy,
                        False, work)
-            ok = is_stable(A_c, cfg[CF_RADIUS])
+            ok = is_hurwitz(work[1], cfg[CF_MARGIN]) and is_stable(A_c, 1.0)
         if ok:
             for j in range(p):
                 theta[j] = theta_c[j]
