@@ -186,7 +186,10 @@ class UreaSCREnv(gym.Env):
         if type(action) is np.ndarray and action.shape == (1,):
             v = float(action[0])
         else:
-            arr = np.asarray(action, dtype=np.float64) if not isinstance(action, (int, float)) else np.float64(action)
+            try:
+                arr = np.asarray(action, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"action must be a number array of shape (1,), got {action!r}") from None
             if arr.size != 1 or arr.ndim > 1:
                 raise ValueError(f"action must have shape (1,), got shape {np.shape(action)}")
             v = float(arr.reshape(-1)[0])

@@ -1,0 +1,247 @@
+"""The Gymnasium environment and its native vector version (issue: scr_env environment)."""
+from __future__ import annotations
+
+import re
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import scr_env
+from scr_env.envs import UreaSCREnv, UreaSCRVectorEnv
+
+ENV_ID = scr_env.ENV_ID
+
+
+def _zero_dose(env: gym.Env) -> np.ndarray:
+    return np.array([-1.0], dtype=np.float32)
+
+
+def test_registered_and_checkers_pass_without_warnings() -> None:
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make(ENV_ID)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+        sb3_check_env(gym.make(ENV_ID).unwrapped, warn=True)
+    assert [str(x.message) for x in w] == []
+    assert isinstance(gym.make("scr_env:scr_env/UreaSCR-v0").unwrapped, UreaSCREnv)
+
+
+def _rollout(seed: int, n: int = 200, **kwargs) -> tuple[np.ndarray, np.ndarray]:
+    env = gym.make(ENV_ID, **kwargs)
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(123)
+    observations, rewards = [obs], []
+    for _ in range(n):
+        obs, r, _, _, _ = env.step(rng.uniform(-1, 1, size=1).astype(np.float32))
+        observations.append(obs)
+        rewards.append(r)
+    return np.array(observations), np.array(rewards)
+
+
+def test_determinism_same_seed_same_rollout() -> None:
+    o1, r1 = _rollout(7)
+    o2, r2 = _rollout(7)
+    np.testing.assert_array_equal(o1, o2)
+    np.testing.assert_array_equal(r1, r2)
+    o3, _ = _rollout(8)
+    assert not np.array_equal(o1, o3)  # sensor noise follows the seed
+
+
+def test_whtc_episode_truncates_at_its_end_with_kpis_and_nitrogen_balance() -> None:
+    env = gym.make(ENV_ID, cycle="whtc", dt=0.5)
+    env.reset(seed=1)
+    action = np.array([-0.6], dtype=np.float32)
+    steps, terminated, truncated = 0, False, False
+    while not (terminated or truncated):
+        _, _, terminated, truncated, info = env.step(action)
+        steps += 1
+    assert (steps, terminated, truncated) == (3600, False, True)
+    k = info["episode_kpis"]
+    for key in ("nox_conversion", "engine_out_nox_g_per_kwh", "tailpipe_nox_g_per_kwh", "mean_nh3_slip_ppm",
+                "peak_nh3_slip_ppm", "adblue_g", "engine_work_kwh"):
+        assert np.isfinite(k[key]), key
+    assert 0.0 < k["nox_conversion"] < 1.0
+    assert k["tailpipe_nox_g_per_kwh"] < k["engine_out_nox_g_per_kwh"]
+    expected_adblue_g = 0.5 * (float(action[0]) + 1.0) * 3.0 * 1800.0  # (a + 1) / 2 * 3 g/s over 1800 s
+    assert k["adblue_g"] == pytest.approx(expected_adblue_g, rel=1e-12)
+    assert abs(k["nitrogen_balance_error"]) < 1e-6
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(action)
+
+
+def test_step_before_reset_raises() -> None:
+    env = UreaSCREnv()
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(1, dtype=np.float32))
+
+
+@pytest.mark.parametrize("bad", [np.array([np.nan], dtype=np.float32), np.array([np.inf]), np.zeros(2),
+                                 np.zeros((1, 1, 1)), "a lot"])
+def test_bad_actions_raise_clear_errors(bad) -> None:
+    env = UreaSCREnv()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action"):
+        env.step(bad)
+
+
+def test_out_of_range_actions_are_clipped_to_the_bounds() -> None:
+    results = []
+    for a in (5.0, 1.0, -7.0, -1.0):
+        env = UreaSCREnv(sensor_noise=False)
+        env.reset(seed=0)
+        obs, r, _, _, info = env.step(np.array([a], dtype=np.float32))
+        results.append((obs, r, info["adblue_g_s"]))
+    assert results[0][2] == results[1][2] == 3.0
+    assert results[2][2] == results[3][2] == 0.0
+    np.testing.assert_array_equal(results[0][0], results[1][0])
+    np.testing.assert_array_equal(results[2][0], results[3][0])
+    assert results[0][0][4] == 1.0 and results[2][0][4] == -1.0  # the observed previous action is the clipped one
+
+
+def test_physical_action_mode() -> None:
+    env = UreaSCREnv(action_mode="physical", sensor_noise=False)
+    assert env.action_space.low[0] == 0.0 and env.action_space.high[0] == pytest.approx(3.0)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.array([1.5], dtype=np.float32))
+    assert info["adblue_g_s"] == pytest.approx(1.5)
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"catalyst": "platinum"}, "catalyst"), ({"dt": 0.0}, "dt"), ({"dt": float("nan")}, "dt"),
+    ({"cycle": "ftp75"}, "cycle"), ({"ageing": 2.0}, "ageing"), ({"action_mode": "volts"}, "action_mode"),
+    ({"reward_weights": {"co2": 1.0}}, "reward_weights"), ({"randomize": -0.1}, "randomize"),
+])
+def test_bad_arguments_name_the_argument(kwargs, name) -> None:
+    with pytest.raises(ValueError, match=name):
+        UreaSCREnv(**kwargs)
+
+
+def test_reward_terms_in_info_sum_to_reward() -> None:
+    env = UreaSCREnv()
+    env.reset(seed=0)
+    for _ in range(50):
+        _, r, _, _, info = env.step(np.array([0.2], dtype=np.float32))
+        assert r == pytest.approx(info["nox_cost"] + info["nh3_cost"] + info["adblue_cost"])
+        assert info["nox_cost"] <= 0 and info["nh3_cost"] <= 0 and info["adblue_cost"] <= 0
+
+
+def test_optional_observations_and_privileged_state() -> None:
+    env = UreaSCREnv(nh3_sensor=True, privileged=True)
+    n_cells = env.config.catalyst.n_cells
+    assert env.observation_space.shape == (5 + 1 + n_cells,)
+    obs, _ = env.reset(seed=0, options={"initial_coverage": 0.3})
+    np.testing.assert_allclose(obs[6:], 0.3, rtol=1e-6)
+    assert env.observation_names[5] == "tailpipe_nh3_sensor_ppm"
+    np.testing.assert_allclose(env.state["nh3_coverage"], 0.3)
+
+
+def test_cold_start_starts_at_ambient() -> None:
+    env = UreaSCREnv(cold_start=True)
+    env.reset(seed=0)
+    np.testing.assert_allclose(env.state["temperature_k"], 298.15)
+    hot = UreaSCREnv()
+    hot.reset(seed=0)
+    assert hot.state["temperature_k"].min() > 450.0
+
+
+def test_random_cycle_is_reproducible_from_the_cycle_seed() -> None:
+    env = UreaSCREnv(cycle="random", random_cycle_duration_s=60.0)
+    env.reset(seed=0, options={"cycle_seed": 5})
+    a = env.trace.nox_ppm.copy()
+    env.reset(seed=1, options={"cycle_seed": 5})
+    np.testing.assert_array_equal(a, env.trace.nox_ppm)
+    env.reset(seed=1, options={"cycle_seed": 6})
+    assert not np.array_equal(a, env.trace.nox_ppm)
+    assert env._n == 120
+
+
+def test_render_rgb_array() -> None:
+    env = gym.make(ENV_ID, render_mode="rgb_array")
+    env.reset(seed=0)
+    for _ in range(20):
+        env.step(np.array([0.0], dtype=np.float32))
+    img = env.render()
+    assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8 and img.std() > 0
+
+
+# ---------------------------------------------------------------------------------------------------- vector env
+def test_make_vec_uses_the_native_vector_env() -> None:
+    venv = gym.make_vec(ENV_ID, num_envs=8, vectorization_mode="vector_entry_point")
+    assert isinstance(venv.unwrapped, UreaSCRVectorEnv)
+    obs, _ = venv.reset(seed=0)
+    assert obs.shape == (8, 5)
+    obs, r, te, tr, info = venv.step(np.zeros((8, 1), dtype=np.float32))
+    assert obs.shape == (8, 5) and r.shape == (8,) and te.shape == (8,) and tr.shape == (8,)
+    assert venv.observation_space.contains(obs)
+    assert info["nox_cost"].shape == (8,)
+
+
+def test_vector_env_matches_single_env_step_for_step() -> None:
+    """The vector env runs the same kernel: without noise, plant i equals a single env on the same cycle."""
+    n = 3
+    venv = UreaSCRVectorEnv(num_envs=n, cycle=["whtc", "whsc", "whtc"], sensor_noise=False)
+    venv.reset(seed=0)
+    singles = [UreaSCREnv(cycle=c, sensor_noise=False) for c in ("whtc", "whsc", "whtc")]
+    for e in singles:
+        e.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        actions = rng.uniform(-1, 1, size=(n, 1)).astype(np.float32)
+        vo, vr, _, _, _ = venv.step(actions)
+        for i, e in enumerate(singles):
+            so, sr, _, _, _ = e.step(actions[i])
+            np.testing.assert_array_equal(vo[i], so)
+            assert vr[i] == sr
+
+
+def test_vector_env_same_step_autoreset_reports_final_kpis() -> None:
+    venv = UreaSCRVectorEnv(num_envs=4, cycle="random", random_cycle_duration_s=10.0, random_cycle_pool=3)
+    venv.reset(seed=0)
+    for k in range(20):
+        obs, _, _, tr, info = venv.step(np.full((4, 1), -0.5, dtype=np.float32))
+    assert tr.all()
+    assert info["_final_obs"].all() and info["final_obs"][0].shape == (5,)
+    kpis = info["final_info"]["episode_kpis"]
+    assert kpis["nox_conversion"].shape == (4,) and np.all(np.isfinite(kpis["nox_conversion"]))
+    assert np.all(np.abs(kpis["nitrogen_balance_error"]) < 1e-6)
+    # the returned observation is the reset one: previous action back at -1 (no dosing)
+    assert np.all(obs[:, 4] == -1.0)
+    obs, _, _, tr, _ = venv.step(np.full((4, 1), -0.5, dtype=np.float32))
+    assert not tr.any()
+
+
+def test_vector_env_bad_actions() -> None:
+    venv = UreaSCRVectorEnv(num_envs=2)
+    venv.reset(seed=0)
+    with pytest.raises(ValueError, match="actions"):
+        venv.step(np.zeros((3, 1)))
+    with pytest.raises(ValueError, match="actions"):
+        venv.step(np.array([[0.0], [np.nan]]))
+    with pytest.raises(ValueError, match="num_envs"):
+        UreaSCRVectorEnv(num_envs=0)
+
+
+def test_ppo_smoke_run() -> None:
+    from stable_baselines3 import PPO
+
+    env = gym.make(ENV_ID, cycle="random", random_cycle_duration_s=120.0)
+    model = PPO("MlpPolicy", env, n_steps=256, batch_size=64, n_epochs=1, seed=0, device="cpu", verbose=0)
+    model.learn(total_timesteps=1024)
+    action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
+    assert env.action_space.contains(action)
+
+
+def test_readme_usage_example_runs() -> None:
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", readme, re.S)
+    assert blocks, "README has no python example"
+    example = blocks[0]
+    assert len(example.strip().splitlines()) <= 12
+    namespace: dict = {}
+    exec(compile(example, "README.md", "exec"), namespace)
