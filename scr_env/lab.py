@@ -82,8 +82,7 @@ def steady_state(catalyst: str | CatalystParams, temperature_c: float, ghsv_per_
     q = flow / (capacity / n_cells)
     theta = np.zeros(n_cells)
     temps = np.full(n_cells, t_k)
-    result = np.empty(5)
-    catalyst_chemistry(theta, temps, q, nh3 * 1e-6, no * 1e-6, no2 * 1e-6, o2 / 100.0, 0.0, p, result)
+    result = catalyst_chemistry(theta, temps, q, nh3 * 1e-6, no * 1e-6, no2 * 1e-6, o2 / 100.0, 0.0, p)
     no_out, no2_out, nh3_out, n2o_out = (result[i] * 1e6 for i in range(4))
     # adsorption equilibrium with the feed: the same cell with every consuming reaction switched off
     k_ads, k_des, e_dg = rate_constants_nb(t_k, max(o2, 1e-9) / 100.0, *p[6:])[:3]

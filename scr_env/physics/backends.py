@@ -25,14 +25,32 @@ def _select_scalar(condition: bool, if_true: float, if_false: float) -> float:
     return if_true if condition else if_false
 
 
+# The one-source functions, in dependency order (a function may call those before it).
+_SOURCES = ("o2_factors", "arrhenius_constants", "rate_constants", "cell_balance", "decomposition_efficiency")
+
+
+def _compile_all(namespace: dict[str, Any], wrap: Callable[[Callable], Callable]) -> dict[str, Callable]:
+    """Rebind every one-source function into ``namespace`` (so calls between them resolve there) and wrap it."""
+    out = {}
+    for name in _SOURCES:
+        func = wrap(_rebind(getattr(_cell, name), namespace))
+        namespace[name] = func
+        out[name] = func
+    return out
+
+
 # "__name__" lets numba's on-disk cache re-import the namespace of the rebound functions.
-_NUMBA_NS = {"__name__": __name__, "exp": math.exp, "log": math.log, "sqrt": math.sqrt, "select": _select_scalar}
+_NUMBA_NS: dict[str, Any] = {"__name__": __name__, "exp": math.exp, "log": math.log, "sqrt": math.sqrt,
+                             "select": _select_scalar, "abs": abs}
 _JIT = dict(nogil=True, fastmath=False, error_model="numpy", cache=True)
+_NB = _compile_all(_NUMBA_NS, numba.njit(**_JIT))
 
 #: numba versions (scalar arguments), used by the compiled plant kernel
-cell_balance_nb = numba.njit(**_JIT)(_rebind(_cell.cell_balance, _NUMBA_NS))
-rate_constants_nb = numba.njit(**_JIT)(_rebind(_cell.rate_constants, _NUMBA_NS))
-decomposition_efficiency_nb = numba.njit(**_JIT)(_rebind(_cell.decomposition_efficiency, _NUMBA_NS))
+cell_balance_nb = _NB["cell_balance"]
+rate_constants_nb = _NB["rate_constants"]
+arrhenius_constants_nb = _NB["arrhenius_constants"]
+o2_factors_nb = _NB["o2_factors"]
+decomposition_efficiency_nb = _NB["decomposition_efficiency"]
 
 
 @lru_cache(maxsize=None)
@@ -40,6 +58,6 @@ def casadi_functions() -> tuple[Callable, Callable, Callable]:
     """``(cell_balance, rate_constants, decomposition_efficiency)`` on CasADi SX/MX expressions (lazy import)."""
     import casadi as ca
 
-    ns = {"exp": ca.exp, "log": ca.log, "sqrt": ca.sqrt, "select": ca.if_else}
-    return (_rebind(_cell.cell_balance, ns), _rebind(_cell.rate_constants, ns),
-            _rebind(_cell.decomposition_efficiency, ns))
+    ns: dict[str, Any] = {"exp": ca.exp, "log": ca.log, "sqrt": ca.sqrt, "select": ca.if_else, "abs": ca.fabs}
+    fns = _compile_all(ns, lambda f: f)
+    return fns["cell_balance"], fns["rate_constants"], fns["decomposition_efficiency"]

@@ -106,29 +106,40 @@ def cell_balance(theta, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamm
     return g, dg, y_nh3, y_no, y_no2, r_std, r_fast, r_no2, r_ox, r_ox_no, r_n2o
 
 
-def rate_constants(temperature_k, o2_fraction, a_ads, a_des, e_des, temkin_gamma, a_std, e_std, a_fast, e_fast,  # noqa: ANN001, ANN201, PLR0913
-                   a_no2, e_no2, a_ox, e_ox, a_ox_no, e_ox_no, a_n2o, e_n2o, o2_reference_fraction, o2_order_std,
-                   o2_order_ox):
-    """Per-site constants of :func:`cell_balance` at a temperature [K] and O2 mole fraction [-].
+def o2_factors(o2_fraction, o2_reference_fraction, o2_order_std, o2_order_ox):  # noqa: ANN001, ANN201
+    """Rate multipliers for the O2 mole fraction [-] relative to the lab's: (standard SCR, NH3 oxidations)."""
+    log_rel = log(o2_fraction / o2_reference_fraction)
+    return exp(o2_order_std * log_rel), exp(o2_order_ox * log_rel)
+
+
+def arrhenius_constants(temperature_k, f_o2_std, f_o2_ox, a_ads, a_des, e_des, temkin_gamma, a_std, e_std,  # noqa: ANN001, ANN201, PLR0913
+                        a_fast, e_fast, a_no2, e_no2, a_ox, e_ox, a_ox_no, e_ox_no, a_n2o, e_n2o):
+    """Per-site constants of :func:`cell_balance` at a temperature [K], with the O2 factors of :func:`o2_factors`.
 
     Converts the literature units (C in mol/m3) to mole fractions with the ideal gas at 1 atm:
     C = y P / (R T). Returns (k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2, k_ox, k_ox_no, k_n2o).
     """
     rt = 8.314462618 * temperature_k  # J/mol; R from CODATA 2018
     c_total = 101325.0 / rt  # mol/m3 at 1 atm (scr_env.constants.ATMOSPHERIC_PRESSURE_PA)
-    o2_rel = o2_fraction / o2_reference_fraction
-    f_std = exp(o2_order_std * log(o2_rel))
-    f_ox = exp(o2_order_ox * log(o2_rel))
     k_ads = a_ads * c_total
     k_des = a_des * exp(-e_des / rt)
     e_des_gamma = temkin_gamma * e_des / rt
-    k_std = a_std * exp(-e_std / rt) * c_total * f_std
+    k_std = a_std * exp(-e_std / rt) * c_total * f_o2_std
     k_fast = a_fast * exp(-e_fast / rt) * c_total * c_total
     k_no2 = a_no2 * exp(-e_no2 / rt) * c_total
-    k_ox = a_ox * exp(-e_ox / rt) * f_ox
-    k_ox_no = a_ox_no * exp(-e_ox_no / rt) * f_ox
+    k_ox = a_ox * exp(-e_ox / rt) * f_o2_ox
+    k_ox_no = a_ox_no * exp(-e_ox_no / rt) * f_o2_ox
     k_n2o = a_n2o * exp(-e_n2o / rt) * c_total
     return k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2, k_ox, k_ox_no, k_n2o
+
+
+def rate_constants(temperature_k, o2_fraction, a_ads, a_des, e_des, temkin_gamma, a_std, e_std, a_fast, e_fast,  # noqa: ANN001, ANN201, PLR0913
+                   a_no2, e_no2, a_ox, e_ox, a_ox_no, e_ox_no, a_n2o, e_n2o, o2_reference_fraction, o2_order_std,
+                   o2_order_ox):
+    """:func:`arrhenius_constants` at an O2 mole fraction [-] (the argument order of the packed parameters)."""
+    f_std, f_ox = o2_factors(o2_fraction, o2_reference_fraction, o2_order_std, o2_order_ox)
+    return arrhenius_constants(temperature_k, f_std, f_ox, a_ads, a_des, e_des, temkin_gamma, a_std, e_std, a_fast,
+                               e_fast, a_no2, e_no2, a_ox, e_ox, a_ox_no, e_ox_no, a_n2o, e_n2o)
 
 
 def decomposition_efficiency(temperature_k, t50_k, width_k):  # noqa: ANN001, ANN201

@@ -38,7 +38,8 @@ from scr_env.constants import (
     NH3_MOL_PER_G_ADBLUE,
 )
 from scr_env.params import DosingParams, SensorParams
-from scr_env.physics.backends import cell_balance_nb, decomposition_efficiency_nb, rate_constants_nb
+from scr_env.physics.backends import arrhenius_constants_nb, decomposition_efficiency_nb, o2_factors_nb
+from scr_env.physics.backends import cell_balance_nb  # noqa: F401  (re-exported for tests and tools)
 
 INPUT_FIELDS = (
     "exhaust_flow_mol_s",  # mol/s
@@ -138,19 +139,22 @@ def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_d
 
 
 @numba.njit(nogil=True, error_model="numpy", cache=True)
-def catalyst_chemistry(theta, temperature_k, q, y_nh3_in, y_no_in, y_no2_in, o2_fraction, inv_dt, p, result):
-    """Advance the coverage of every cell (in place) at given cell temperatures; fills ``result`` with
-    (y_no, y_no2, y_nh3, y_n2o at the outlet, N2 formed per site-second summed over cells [1/s])."""
+def catalyst_chemistry(theta, temperature_k, q, y_nh3_in, y_no_in, y_no2_in, o2_fraction, inv_dt, p):
+    """Advance the coverage of every cell (in place) at given cell temperatures.
+
+    Returns (y_no, y_no2, y_nh3, y_n2o at the outlet [-], N2 formed per site and second summed over cells [1/s]).
+    """
     n = theta.shape[0]
     y_nh3 = y_nh3_in
     y_no = y_no_in
     y_no2 = y_no2_in
     y_n2o = 0.0
     n2_per_site = 0.0
+    f_std, f_ox = o2_factors_nb(o2_fraction, p[22], p[23], p[24])
     for j in range(n):
-        k_ads, k_des, e_dg, k_std, k_fast, k_no2, k_ox, k_ox_no, k_n2o = rate_constants_nb(
-            temperature_k[j], o2_fraction, p[6], p[7], p[8], p[9], p[10], p[11], p[12], p[13], p[14], p[15],
-            p[16], p[17], p[18], p[19], p[20], p[21], p[22], p[23], p[24])
+        k_ads, k_des, e_dg, k_std, k_fast, k_no2, k_ox, k_ox_no, k_n2o = arrhenius_constants_nb(
+            temperature_k[j], f_std, f_ox, p[6], p[7], p[8], p[9], p[10], p[11], p[12], p[13], p[14], p[15],
+            p[16], p[17], p[18], p[19], p[20], p[21])
         th, r = solve_coverage(theta[j], inv_dt, q, y_nh3, y_no, y_no2, k_ads, k_des, e_dg, k_std, k_fast, k_no2,
                                k_ox, k_ox_no, k_n2o)
         theta[j] = th
@@ -159,11 +163,7 @@ def catalyst_chemistry(theta, temperature_k, q, y_nh3_in, y_no_in, y_no2_in, o2_
         # N atoms to N2 per site: standard 2, fast 4, NO2-SCR 7/3 (4/3 NH3 + 1 NO2), oxidation to N2 1;
         # N2O takes 2 N (1 NH3 + 1 NO) per r_n2o, NH3 -> NO keeps its N in the gas
         n2_per_site += 0.5 * (2.0 * r_std + 4.0 * r_fast + (7.0 / 3.0) * r_no2 + r_ox)
-    result[0] = y_no
-    result[1] = y_no2
-    result[2] = y_nh3
-    result[3] = y_n2o
-    result[4] = n2_per_site
+    return y_no, y_no2, y_nh3, y_n2o, n2_per_site
 
 
 @numba.njit(nogil=True, error_model="numpy", cache=True)
@@ -207,8 +207,7 @@ def _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_param
     y_nh3_in = nh3_mol_s / safe_flow
 
     # --- chemistry --------------------------------------------------------------------------------------------
-    res = np.empty(5)
-    catalyst_chemistry(th, temp, q, y_nh3_in, nox_in * (1.0 - no2_frac), nox_in * no2_frac, o2, 1.0 / dt, p, res)
+    res = catalyst_chemistry(th, temp, q, y_nh3_in, nox_in * (1.0 - no2_frac), nox_in * no2_frac, o2, 1.0 / dt, p)
     o = out[b]
     o[O_NO] = res[0] * 1e6
     o[O_NO2] = res[1] * 1e6
