@@ -146,6 +146,75 @@ def _make_work(N, p):
 
 
 @njit(cache=True)
+def _charpoly(M):
+    """Coefficients c of det(sI - M) = c[0] s^N + ... + c[N] (Faddeev-LeVerrier; no LAPACK, so it compiles fast)."""
+    N = M.shape[0]
+    c = np.zeros(N + 1)
+    c[0] = 1.0
+    Mk = np.zeros((N, N))
+    AM = np.zeros((N, N))
+    for k in range(1, N + 1):
+        for i in range(N):
+            for j in range(N):
+                acc = 0.0
+                for q in range(N):
+                    acc += M[i, q] * Mk[q, j]
+                AM[i, j] = acc
+        for i in range(N):
+            for j in range(N):
+                Mk[i, j] = AM[i, j]
+            Mk[i, i] += c[k - 1]
+        tr = 0.0
+        for i in range(N):
+            for q in range(N):
+                tr += M[i, q] * Mk[q, i]
+        c[k] = -tr / k
+    return c
+
+
+@njit(cache=True)
+def _routh_stable(c):
+    """Routh test: all roots of the polynomial c (c[0] > 0) in the open left half plane."""
+    N = c.shape[0] - 1
+    W = N // 2 + 2
+    a = np.zeros(W)
+    b = np.zeros(W)
+    for j in range(W):
+        if 2 * j <= N:
+            a[j] = c[2 * j]
+        if 2 * j + 1 <= N:
+            b[j] = c[2 * j + 1]
+    if a[0] <= 0.0:
+        return False
+    for _ in range(N):
+        if b[0] <= 0.0:
+            return False
+        new = np.zeros(W)
+        for j in range(W - 1):
+            new[j] = (b[0] * a[j + 1] - a[0] * b[j + 1]) / b[0]
+        a = b
+        b = new
+    return True
+
+
+@njit(cache=True)
+def _schur_stable(c):
+    """Schur-Cohn step-down test: all roots of the monic polynomial c strictly inside the unit circle."""
+    a = c.copy()
+    n = a.shape[0] - 1
+    while n > 0:
+        k = a[n]
+        if abs(k) >= 1.0:
+            return False
+        new = np.empty(n)
+        for i in range(n):
+            new[i] = (a[i] - k * a[n - i]) / (1.0 - k * k)
+        a = new
+        n -= 1
+    return True
+
+
+@njit(cache=True)
 def is_hurwitz(J, margin):
     """True if every eigenvalue of ``J`` has real part below ``-margin``."""
     N = J.shape[0]
@@ -156,8 +225,10 @@ def is_hurwitz(J, margin):
         tr = J[0, 0] + J[1, 1] + 2.0 * margin
         det = (J[0, 0] + margin) * (J[1, 1] + margin) - J[0, 1] * J[1, 0]
         return tr < 0.0 and det > 0.0
-    ev = np.linalg.eigvals(J.astype(np.complex128))
-    return np.max(ev.real) < -margin
+    Js = J.copy()
+    for i in range(N):
+        Js[i, i] += margin
+    return _routh_stable(_charpoly(Js))
 
 
 @njit(cache=True)
@@ -171,8 +242,7 @@ def is_stable(A, radius):
         tr = (A[0, 0] + A[1, 1]) / radius
         det = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) / (radius * radius)
         return abs(det) < 1.0 and abs(tr) < 1.0 + det
-    ev = np.linalg.eigvals(A.astype(np.complex128))
-    return np.max(np.abs(ev)) < radius
+    return _schur_stable(_charpoly(A / radius))
 
 
 @njit(cache=True)
@@ -186,16 +256,42 @@ def _clip(v, bound):
 
 @njit(cache=True)
 def _inv_small(M, out):
-    """Inverse of a small symmetric positive definite matrix (d x d); returns False if singular."""
+    """Inverse of a small symmetric positive definite matrix via Cholesky; False if not positive definite.
+
+    Written with loops rather than np.linalg so that the kernels compile without LAPACK bindings.
+    """
     d = M.shape[0]
     if d == 1:
         if M[0, 0] <= 0.0:
             return False
         out[0, 0] = 1.0 / M[0, 0]
         return True
-    if np.linalg.det(M) <= 0.0:
-        return False
-    out[:, :] = np.linalg.inv(M)
+    L = np.zeros((d, d))
+    for i in range(d):
+        for j in range(i + 1):
+            acc = 0.5 * (M[i, j] + M[j, i])
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            if i == j:
+                if acc <= 0.0:
+                    return False
+                L[i, i] = np.sqrt(acc)
+            else:
+                L[i, j] = acc / L[j, j]
+    Li = np.zeros((d, d))  # inverse of the lower-triangular factor
+    for i in range(d):
+        Li[i, i] = 1.0 / L[i, i]
+        for j in range(i):
+            acc = 0.0
+            for k in range(j, i):
+                acc -= L[i, k] * Li[k, j]
+            Li[i, j] = acc / L[i, i]
+    for i in range(d):
+        for j in range(d):
+            acc = 0.0
+            for k in range(max(i, j), d):
+                acc += Li[k, i] * Li[k, j]
+            out[i, j] = acc
     return True
 
 
@@ -351,6 +447,24 @@ def simulate(WS, WH, theta, x0, cfg, y_lo, y_hi, fvar, fpow, nf, owner, n_chain,
 
 
 @njit(cache=True)
+def _sandwich(F, P, Q, tmp):
+    """P <- F P F^T + Q with loops (no BLAS binding to compile)."""
+    n = P.shape[0]
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += F[i, k] * P[k, j]
+            tmp[i, j] = acc
+    for i in range(n):
+        for j in range(n):
+            acc = Q[i, j]
+            for k in range(n):
+                acc += tmp[i, k] * F[j, k]
+            P[i, j] = acc
+
+
+@njit(cache=True)
 def ekf_run(WS, WH, Y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, owner, n_chain, X):
     """Extended Kalman filter on the state augmented with theta, ``z = (x, theta)`` (Brus and Wigren 2006).
 
@@ -368,6 +482,7 @@ def ekf_run(WS, WH, Y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, owner, n_chain, X):
     A = np.empty((N, N))
     B = np.empty((N, p))
     Fz = np.zeros((nz, nz))
+    tmp = np.empty((nz, nz))
     Sm = np.empty((d, d))
     Si = np.empty((d, d))
     K = np.empty((nz, d))
@@ -384,7 +499,7 @@ def ekf_run(WS, WH, Y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, owner, n_chain, X):
             Fz[:N, N:] = B
             for i in range(N):
                 z[i] = _clip(x_next[i], xmax)
-            Pz[:, :] = Fz @ Pz @ Fz.T + Q
+            _sandwich(Fz, Pz, Q, tmp)
         # Measurement update: output k observes state k * n_chain.
         for a in range(d):
             for b in range(d):
