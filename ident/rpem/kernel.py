@@ -42,6 +42,15 @@ CF_UPDATE = 7  # 1: run the parameter update, 0: only propagate (evaluation)
 N_CF = 8
 
 
+@njit(cache=True, inline="always")
+def _ipow(v, k):
+    # Powers are small integers, mostly 1: a multiply loop beats the general pow().
+    r = v
+    for _ in range(k - 1):
+        r *= v
+    return r
+
+
 @njit(cache=True)
 def _regressors(xv, w, fvar, fpow, nf, n_states, phi, dphi):
     """phi_j(z) and d phi_j / d x (shape p x N) at z = (xv, w)."""
@@ -51,7 +60,7 @@ def _regressors(xv, w, fvar, fpow, nf, n_states, phi, dphi):
         for f in range(nf[j]):
             v = fvar[j, f]
             zv = xv[v] if v < n_states else w[v - n_states]
-            val *= zv ** fpow[j, f]
+            val *= _ipow(zv, fpow[j, f])
         phi[j] = val
         for i in range(n_states):
             dphi[j, i] = 0.0
@@ -60,12 +69,12 @@ def _regressors(xv, w, fvar, fpow, nf, n_states, phi, dphi):
             if v >= n_states:
                 continue
             k = fpow[j, f]
-            der = k * xv[v] ** (k - 1)
+            der = k * _ipow(xv[v], k - 1) if k > 1 else 1.0
             for g in range(nf[j]):
                 if g != f:
                     vg = fvar[j, g]
                     zg = xv[vg] if vg < n_states else w[vg - n_states]
-                    der *= zg ** fpow[j, g]
+                    der *= _ipow(zg, fpow[j, g])
             dphi[j, v] += der
 
 
