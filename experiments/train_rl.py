@@ -1,0 +1,169 @@
+"""Train a PPO/SAC/TD3 dosing policy on random cycles, evaluate it on the held-out WHTC and WHSC.
+
+    python -m experiments.train_rl --algo ppo --timesteps 1000000 --seed 0 --ship
+    python -m experiments.train_rl --algo sac --timesteps 200000 --json sac.json
+    python -m experiments.train_rl --algo ppo --timesteps 300000 --surrogate   # train on an identified model
+
+Training runs on the native vector environment (``cycle="random"``, random start offsets) through the stack of
+:mod:`control.rl.training`; TensorBoard logs and checkpoints go to the run folder (``--out``, default
+``runs/train_rl/<algo>/<time>``); the trained policy is written there in the shipped format (``policy/``), and with
+``--ship`` also to ``control/policies/``. The evaluation uses :func:`control.evaluation.evaluate` on the WHTC and WHSC
+(hot start, sensor noise, seeds ``--eval-seeds``) for the policy, the look-up-table baseline
+(:class:`control.baselines.LookupTableDosing`) and a flat feedforward ANR = 0.9; ``--json`` gets the KPIs and the wall
+time. With ``--surrogate`` the agent trains on an identified linear model (:mod:`control.rl.surrogate`) and the JSON
+also reports its KPIs on the surrogate versus the first-principles plant (the sim-to-real gap).
+"""
+from __future__ import annotations
+
+import argparse
+import shlex
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments._runs import run_folder, write_json
+
+#: reward weights of training [chosen, see control/policies/README.md]: a gram of tailpipe NOx and a gram of NH3
+#: slip cost the same, 40 g of AdBlue each; this puts the best flat ANR at about 1.02 (1-5 ppm mean slip on the
+#: WHTC/WHSC), well inside the 10 ppm limit, while the default (20, 60, 1) puts it at 1.0.
+TRAIN_REWARD_WEIGHTS = {"nox": 40.0, "nh3": 40.0, "adblue": 1.0}
+
+
+class FeedforwardANR:
+    """Flat feedforward dosing: AdBlue = ANR * upstream NOx * flow / NH3 per g AdBlue (a reference, no map)."""
+
+    def __init__(self, anr: float = 0.9, max_rate_g_s: float = 3.0) -> None:
+        self.anr = anr
+        self.max_rate_g_s = max_rate_g_s
+
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+
+        obs = np.asarray(observation, dtype=np.float64)
+        rate = self.anr * max(obs[0], 0.0) * 1e-6 * max(obs[2], 0.0) / NH3_MOL_PER_G_ADBLUE
+        rate = min(max(rate, 0.0), self.max_rate_g_s)
+        return np.array([2.0 * rate / self.max_rate_g_s - 1.0], dtype=np.float32), state
+
+
+def reference_policies() -> dict[str, Any]:
+    """The baselines the RL policies are compared with: the look-up table (if control.baselines exists) and ANR 0.9."""
+    refs: dict[str, Any] = {}
+    try:
+        from control.baselines import LookupTableDosing
+
+        refs["lookup_table"] = LookupTableDosing()
+    except ImportError:
+        pass
+    refs["feedforward_anr_0.9"] = FeedforwardANR(0.9)
+    return refs
+
+
+def evaluate_policies(policies: dict[str, Any], cycles: tuple[str, ...], seeds: tuple[int, ...]) -> dict:
+    """``{cycle: {name: {kpi: mean over seeds}}}`` via control.evaluation."""
+    from control.evaluation import evaluate, summarise
+
+    results = []
+    for name, policy in policies.items():
+        results += evaluate(policy, cycles=cycles, seeds=seeds, name=name)
+    return summarise(results), results
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--algo", choices=("ppo", "sac", "td3"), required=True)
+    p.add_argument("--timesteps", type=int, required=True, help="environment steps (all plants together)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--num-envs", type=int, default=None, help="plants in the vector env (default per algorithm)")
+    p.add_argument("--out", type=Path, default=None, help="run folder (default runs/train_rl/<algo>/<time>)")
+    p.add_argument("--json", type=Path, default=None, help="write the evaluation KPIs and wall time here")
+    p.add_argument("--name", default=None, help="policy name (default: the algorithm)")
+    p.add_argument("--ship", action="store_true", help="also write the policy to control/policies/")
+    p.add_argument("--n-stack", type=int, default=4, help="observation history length of the pipeline")
+    p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--checkpoint-every", type=int, default=100_000, help="environment steps; 0 = none")
+    p.add_argument("--surrogate", action="store_true", help="train on an identified linear surrogate model")
+    p.add_argument("--default-reward", action="store_true",
+                   help="train on the environment's default reward weights instead of TRAIN_REWARD_WEIGHTS")
+    p.add_argument("--no-progress", action="store_true")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = parse_args(argv)
+    from control.rl.pipeline import PipelineConfig
+    from control.rl.policy import POLICY_DIR, load_policy
+    from control.rl.training import train
+
+    name = args.name or args.algo
+    out = args.out or run_folder(f"train_rl/{args.algo}")
+    out.mkdir(parents=True, exist_ok=True)
+    command = "python -m experiments.train_rl " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    weights = None if args.default_reward else dict(TRAIN_REWARD_WEIGHTS)
+    env_kwargs = {} if weights is None else {"reward_weights": weights}
+    pipeline = PipelineConfig(n_stack=args.n_stack)
+    venv = None
+    surrogate_info: dict[str, Any] = {}
+    if args.surrogate:
+        from control.rl.surrogate import make_surrogate_training_env
+
+        venv, surrogate_info = make_surrogate_training_env(args.num_envs or 8, args.seed, pipeline, env_kwargs)
+    meta = {"command": command, "machine": "2 cores shared (torch threads = 1)",
+            "reward_weights_training": weights or "environment default (20, 60, 1)",
+            "trained_on": "surrogate: " + surrogate_info.get("model", "") if args.surrogate
+            else "UreaSCRVectorEnv, random cycles (1800 s, pool of 32 per seed), random start offsets"}
+    result = train(args.algo, args.timesteps, seed=args.seed, num_envs=args.num_envs, out=out, pipeline=pipeline,
+                   env_kwargs=env_kwargs, progress_bar=not args.no_progress,
+                   checkpoint_every=args.checkpoint_every, venv=venv, metadata=meta)
+    if args.surrogate:
+        result.metadata["observation_names"] = list(surrogate_info["observation_names"])
+        result.metadata["env_kwargs"] = surrogate_info["env_kwargs"]
+    print(f"trained {args.algo} for {result.metadata['timesteps']} steps in {result.wall_time_s:.0f} s")
+    json_path = result.save(out / "policy", name)
+    policy = load_policy(json_path)
+    cycles = ("whtc", "whsc")
+    seeds = tuple(args.eval_seeds)
+    t0 = time.perf_counter()
+    summary, _ = evaluate_policies({name: policy, **reference_policies()}, cycles, seeds)
+    eval_s = time.perf_counter() - t0
+    report: dict[str, Any] = {
+        "algo": args.algo, "name": name, "timesteps": result.metadata["timesteps"], "seed": args.seed,
+        "training_wall_time_s": round(result.wall_time_s, 1), "evaluation_wall_time_s": round(eval_s, 1),
+        "command": command, "eval_seeds": list(seeds), "run_folder": str(out), "policy": str(json_path),
+        "cycles": {c: {"controllers": summary[c]} for c in cycles},
+    }
+    if args.surrogate:
+        from control.rl.surrogate import sim_to_real_gap
+
+        report["surrogate"] = {k: v for k, v in surrogate_info.items() if k != "surrogate_object"}
+        report["sim_to_real"] = sim_to_real_gap(policy, surrogate_info, cycles, seeds)
+    # store the held-out evaluation in the policy's metadata too
+    import json
+
+    meta_file = Path(json_path)
+    meta_all = json.loads(meta_file.read_text())
+    meta_all["evaluation"] = {c: {k: {kk: summary[c][k][kk] for kk in ("tailpipe_nox_g_per_kwh", "mean_nh3_slip_ppm",
+                                                                            "peak_nh3_slip_ppm", "adblue_g")}
+                                  for k in summary[c]} for c in cycles}
+    meta_all["evaluation_seeds"] = list(seeds)
+    meta_file.write_text(json.dumps(meta_all, indent=2))
+    if args.ship:
+        for f in (f"{name}.zip", f"{name}_vecnormalize.npz", f"{name}.json"):
+            shutil.copy2(out / "policy" / f, POLICY_DIR / f)
+        report["shipped"] = str(POLICY_DIR / f"{name}.json")
+    write_json(out / "report.json", report)
+    if args.json:
+        write_json(args.json, report)
+    for c in cycles:
+        for n, row in summary[c].items():
+            print(f"{c:5s} {n:22s} tailpipe {row['tailpipe_nox_g_per_kwh']:.3f} g/kWh  "
+                  f"slip mean {row['mean_nh3_slip_ppm']:.2f} ppm  peak {row['peak_nh3_slip_ppm']:.0f} ppm")
+    return report
+
+
+if __name__ == "__main__":
+    main()
