@@ -1,0 +1,434 @@
+"""Static nonlinearities of block-oriented models: value, derivatives and a CasADi version of each.
+
+Every block maps a signal ``x`` (shape (N,)) to ``v = g(x; p)`` with parameters ``p`` (shape (n_params,)) and gives
+
+* ``value(x, p)``, ``dx(x, p)`` = dg/dx (N,), ``dp(x, p)`` = dg/dp (N, n_params) for the exact Jacobian of the
+  simulation-error fit,
+* ``casadi(x, p)`` the same function on CasADi symbols (for ``to_casadi``),
+* ``initial_params(x)``: the starting parameters for data ``x`` (identity-like where possible), which may also set
+  data-dependent constants (knots, normalisation) once, before the fit,
+* ``to_dict()`` / :func:`block_from_dict` for saving (JSON).
+
+``estimate`` says whether the parameters are estimated (True) or held at their given or initial values.
+
+=====================  ==============================================================  =========================
+block                  g(x; p)                                                         parameters
+=====================  ==============================================================  =========================
+:class:`Identity`      x                                                               none
+:class:`Arrhenius`     (exp(-a / x) - m) / s, x a temperature in K; m, s fixed at       a (K)
+                       ``initial_params`` from the data (Paper IV's normalised v3)
+:class:`PiecewiseLinear`  continuous, linear between knots, linear extrapolation;      values at knots (+ knots)
+                       knots at data quantiles or given
+:class:`Saturation`    min(max(x, lower), upper)                                       lower, upper
+:class:`DeadZone`      x - upper above upper, x - lower below lower, 0 between         lower, upper
+:class:`Polynomial`    sum_k c_k x^k, k = 0..degree                                    c_0..c_degree
+=====================  ==============================================================  =========================
+"""
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Arrhenius", "DeadZone", "Identity", "PiecewiseLinear", "Polynomial", "Saturation",
+           "StaticNonlinearity", "block_from_dict"]
+
+_BLOCKS: dict[str, type[StaticNonlinearity]] = {}
+
+
+def _register(cls: type[StaticNonlinearity]) -> type[StaticNonlinearity]:
+    _BLOCKS[cls.__name__] = cls
+    return cls
+
+
+class StaticNonlinearity:
+    """Base class: subclasses implement ``value``, ``dx``, ``dp``, ``casadi``, ``initial_params``."""
+
+    estimate: bool = False
+
+    def n_params(self) -> int:
+        raise NotImplementedError
+
+    def initial_params(self, x: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def casadi(self, x: Any, p: np.ndarray) -> Any:
+        raise NotImplementedError
+
+    def n_free(self) -> int:
+        """Number of estimated parameters."""
+        return self.n_params() if self.estimate else 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"type": type(self).__name__, **{k: _plain(v) for k, v in vars(self).items()}}
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in vars(self).items())
+        return f"{type(self).__name__}({args})"
+
+    def copy(self) -> StaticNonlinearity:
+        return copy.deepcopy(self)
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, tuple):
+        return list(v)
+    return v
+
+
+def block_from_dict(d: dict[str, Any]) -> StaticNonlinearity:
+    """Rebuild a block written by ``to_dict``."""
+    d = dict(d)
+    kind = d.pop("type")
+    if kind not in _BLOCKS:
+        raise ValueError(f"unknown static block {kind!r}; known: {sorted(_BLOCKS)}")
+    obj = _BLOCKS[kind].__new__(_BLOCKS[kind])
+    for k, v in d.items():
+        setattr(obj, k, np.asarray(v, dtype=float) if isinstance(v, list) else v)
+    return obj
+
+
+def _x(x: Any) -> np.ndarray:
+    return np.asarray(x, dtype=float).reshape(-1)
+
+
+@_register
+class Identity(StaticNonlinearity):
+    """``g(x) = x`` (no parameters)."""
+
+    def __init__(self) -> None:
+        self.estimate = False
+
+    def n_params(self) -> int:
+        return 0
+
+    def initial_params(self, x: np.ndarray) -> np.ndarray:
+        return np.zeros(0)
+
+    def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return _x(x).copy()
+
+    def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.ones_like(_x(x))
+
+    def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.zeros((_x(x).size, 0))
+
+    def casadi(self, x: Any, p: np.ndarray) -> Any:
+        return x
+
+
+@_register
+class Arrhenius(StaticNonlinearity):
+    """``g(T) = (exp(-a / T) - m) / s``: the reaction-rate temperature dependence, normalised (Paper IV's v3).
+
+    Parameters
+    ----------
+    a : float
+        Activation temperature in K (Paper IV: 1e4, fixed).
+    estimate : bool
+        Estimate ``a``.
+    offset, scale : float, optional
+        ``m`` and ``s``; by default the mean and SD of ``exp(-a / T)`` over the estimation data, computed once by
+        ``initial_params`` and then held (so the normalisation does not move with ``a``).
+    """
+
+    def __init__(self, a: float = 1.0e4, estimate: bool = False, offset: float | None = None,
+                 scale: float | None = None) -> None:
+        self.a = a
+        self.estimate = estimate
+        self.offset = offset
+        self.scale = scale
+
+    def n_params(self) -> int:
+        return 1
+
+    def initial_params(self, x: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        if np.any(x <= 0) or not np.all(np.isfinite(x)):
+            raise ValueError("Arrhenius block: the input must be a positive temperature in kelvin")
+        e = np.exp(-self.a / x)
+        if self.offset is None:
+            self.offset = float(e.mean())
+        if self.scale is None:
+            sd = float(e.std())
+            if sd <= 0:
+                raise ValueError("Arrhenius block: exp(-a/T) is constant on these data (constant temperature?)")
+            self.scale = sd
+        return np.array([float(self.a)])
+
+    def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return (np.exp(-p[0] / _x(x)) - self.offset) / self.scale
+
+    def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        return np.exp(-p[0] / x) * p[0] / x**2 / self.scale
+
+    def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        return (-np.exp(-p[0] / x) / x / self.scale)[:, None]
+
+    def casadi(self, x: Any, p: np.ndarray) -> Any:
+        import casadi as ca
+
+        return (ca.exp(-float(p[0]) / x) - self.offset) / self.scale
+
+
+@_register
+class PiecewiseLinear(StaticNonlinearity):
+    """Continuous piecewise-linear function with ``n_segments`` segments, linear extrapolation beyond the ends.
+
+    Parametrised by its values at the ``n_segments + 1`` knots (starting as the identity), plus the knots themselves
+    when ``estimate_knots``. Knots default to equally spaced quantiles of the estimation data (so each segment holds
+    about the same number of samples; the outer segments extend to infinity), or are given.
+
+    Parameters
+    ----------
+    n_segments : int
+        Number of segments (>= 1; Paper IV's M-V: 9, 5, 9, 5).
+    knots : sequence of float, optional
+        ``n_segments + 1`` increasing knots; default from data quantiles.
+    estimate : bool
+        Estimate the values at the knots.
+    estimate_knots : bool
+        Estimate the knots too (the fit keeps them increasing by rejecting steps that reorder them).
+    """
+
+    def __init__(self, n_segments: int = 5, knots: Sequence[float] | None = None, estimate: bool = True,
+                 estimate_knots: bool = False) -> None:
+        self.n_segments = n_segments
+        self.knots = knots
+        self.estimate = estimate
+        self.estimate_knots = estimate_knots
+
+    def _k(self) -> int:
+        return int(self.n_segments) + 1
+
+    def n_params(self) -> int:
+        return self._k() * (2 if self.estimate_knots else 1)
+
+    def n_free(self) -> int:
+        return self.n_params() if (self.estimate or self.estimate_knots) else 0
+
+    def initial_params(self, x: np.ndarray) -> np.ndarray:
+        if int(self.n_segments) != self.n_segments or self.n_segments < 1:
+            raise ValueError(f"n_segments must be a positive integer, got {self.n_segments}")
+        if self.knots is None:
+            knots = np.quantile(_x(x), np.linspace(0.0, 1.0, self._k()))
+            if np.any(np.diff(knots) <= 0):
+                lo, hi = float(np.min(x)), float(np.max(x))
+                if hi <= lo:
+                    raise ValueError("PiecewiseLinear: the input is constant, knots cannot be placed")
+                knots = np.linspace(lo, hi, self._k())
+            self.knots = knots
+        knots = np.asarray(self.knots, dtype=float)
+        if knots.size != self._k() or np.any(np.diff(knots) <= 0):
+            raise ValueError(f"PiecewiseLinear needs {self._k()} strictly increasing knots, got {knots.tolist()}")
+        self.knots = knots
+        return np.concatenate([knots, knots]) if self.estimate_knots else knots.copy()
+
+    def _split(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        k = self._k()
+        if self.estimate_knots:
+            return p[:k], p[k:]
+        return np.asarray(self.knots, dtype=float), p
+
+    def _segment(self, x: np.ndarray, knots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Segment index j (0..K-2) of each sample (outer segments extended) and position t in it (may be < 0
+        or > 1 in the extrapolated ends)."""
+        j = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, knots.size - 2)
+        t = (x - knots[j]) / (knots[j + 1] - knots[j])
+        return j, t
+
+    def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        knots, vals = self._split(p)
+        j, t = self._segment(x, knots)
+        return vals[j] + t * (vals[j + 1] - vals[j])
+
+    def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        knots, vals = self._split(p)
+        j, _ = self._segment(x, knots)
+        return (vals[j + 1] - vals[j]) / (knots[j + 1] - knots[j])
+
+    def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        knots, vals = self._split(p)
+        k = knots.size
+        j, t = self._segment(x, knots)
+        rows = np.arange(x.size)
+        dv = np.zeros((x.size, k))
+        dv[rows, j] = 1.0 - t
+        dv[rows, j + 1] += t
+        if not self.estimate_knots:
+            return dv
+        # v = vals_j + (x - k_j) / (k_{j+1} - k_j) * dvals
+        h = knots[j + 1] - knots[j]
+        slope = (vals[j + 1] - vals[j]) / h
+        dk = np.zeros((x.size, k))
+        dk[rows, j] = -slope + slope * t          # d/dk_j: -(slope) + (x-k_j) slope / h
+        dk[rows, j + 1] += -slope * t             # d/dk_{j+1}: -(x - k_j) slope / h
+        return np.concatenate([dk, dv], axis=1)
+
+    def casadi(self, x: Any, p: np.ndarray) -> Any:
+        import casadi as ca
+
+        knots, vals = self._split(np.asarray(p, dtype=float))
+        slopes = np.diff(vals) / np.diff(knots)
+        # v = vals_0 + s_0 (x - k_0) + sum_j (s_j - s_{j-1}) max(x - k_j, 0): exact, linear beyond both ends
+        out = float(vals[0]) + float(slopes[0]) * (x - float(knots[0]))
+        for j in range(1, slopes.size):
+            out = out + float(slopes[j] - slopes[j - 1]) * ca.fmax(x - float(knots[j]), 0.0)
+        return out
+
+
+@_register
+class Saturation(StaticNonlinearity):
+    """``g(x) = min(max(x, lower), upper)``; ``-inf`` / ``inf`` leave a side open (Paper IV's output block:
+    ``lower = w_min = -mean(y) / SD(y)``, no upper limit).
+
+    Parameters
+    ----------
+    lower, upper : float
+        Limits (``lower < upper``).
+    estimate : bool
+        Estimate the finite limits.
+    """
+
+    def __init__(self, lower: float = -np.inf, upper: float = np.inf, estimate: bool = False) -> None:
+        self.lower = lower
+        self.upper = upper
+        self.estimate = estimate
+
+    def _finite(self) -> list[int]:
+        return [i for i, v in enumerate((self.lower, self.upper)) if np.isfinite(v)]
+
+    def n_params(self) -> int:
+        return len(self._finite())
+
+    def initial_params(self, x: np.ndarray) -> np.ndarray:
+        if not float(self.lower) < float(self.upper):
+            raise ValueError(f"Saturation needs lower < upper, got {self.lower}, {self.upper}")
+        lim = (float(self.lower), float(self.upper))
+        return np.array([lim[i] for i in self._finite()])
+
+    def _limits(self, p: np.ndarray) -> tuple[float, float]:
+        lim = [float(self.lower), float(self.upper)]
+        for i, v in zip(self._finite(), p):
+            lim[i] = float(v)
+        return lim[0], lim[1]
+
+    def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        lo, hi = self._limits(p)
+        return np.clip(_x(x), lo, hi)
+
+    def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        lo, hi = self._limits(p)
+        x = _x(x)
+        return ((x > lo) & (x < hi)).astype(float)
+
+    def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        lo, hi = self._limits(p)
+        x = _x(x)
+        cols = {0: (x <= lo).astype(float), 1: (x >= hi).astype(float)}
+        return np.column_stack([cols[i] for i in self._finite()]) if self._finite() else np.zeros((x.size, 0))
+
+    def casadi(self, x: Any, p: np.ndarray) -> Any:
+        import casadi as ca
+
+        lo, hi = self._limits(np.asarray(p, dtype=float))
+        out = x
+        if np.isfinite(lo):
+            out = ca.fmax(out, lo)
+        if np.isfinite(hi):
+            out = ca.fmin(out, hi)
+        return out
+
+
+@_register
+class DeadZone(StaticNonlinearity):
+    """``g(x) = x - upper`` for x > upper, ``x - lower`` for x < lower, 0 in between (``lower <= upper``)."""
+
+    def __init__(self, lower: float = -0.1, upper: float = 0.1, estimate: bool = False) -> None:
+        self.lower = lower
+        self.upper = upper
+        self.estimate = estimate
+
+    def n_params(self) -> int:
+        return 2
+
+    def initial_params(self, x: np.ndarray) -> np.ndarray:
+        if not float(self.lower) <= float(self.upper):
+            raise ValueError(f"DeadZone needs lower <= upper, got {self.lower}, {self.upper}")
+        return np.array([float(self.lower), float(self.upper)])
+
+    def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        return np.where(x > p[1], x - p[1], np.where(x < p[0], x - p[0], 0.0))
+
+    def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        return ((x > p[1]) | (x < p[0])).astype(float)
+
+    def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        return np.column_stack([-(x < p[0]).astype(float), -(x > p[1]).astype(float)])
+
+    def casadi(self, x: Any, p: np.ndarray) -> Any:
+        import casadi as ca
+
+        return ca.fmax(x - float(p[1]), 0.0) + ca.fmin(x - float(p[0]), 0.0)
+
+
+@_register
+class Polynomial(StaticNonlinearity):
+    """``g(x) = sum_k c_k x^k`` for k = 0..degree, starting as the identity (c_1 = 1) unless ``coefficients``."""
+
+    def __init__(self, degree: int = 3, coefficients: Sequence[float] | None = None, estimate: bool = True) -> None:
+        self.degree = degree
+        self.coefficients = coefficients
+        self.estimate = estimate
+
+    def n_params(self) -> int:
+        return int(self.degree) + 1
+
+    def initial_params(self, x: np.ndarray) -> np.ndarray:
+        if int(self.degree) != self.degree or self.degree < 1:
+            raise ValueError(f"degree must be a positive integer, got {self.degree}")
+        if self.coefficients is not None:
+            c = np.asarray(self.coefficients, dtype=float)
+            if c.size != self.n_params():
+                raise ValueError(f"need {self.n_params()} coefficients, got {c.size}")
+            return c.copy()
+        c = np.zeros(self.n_params())
+        c[1] = 1.0
+        return c
+
+    def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.polynomial.polynomial.polyval(_x(x), p)
+
+    def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.polynomial.polynomial.polyval(_x(x), np.polynomial.polynomial.polyder(p))
+
+    def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.vander(_x(x), self.n_params(), increasing=True)
+
+    def casadi(self, x: Any, p: np.ndarray) -> Any:
+        out = 0.0
+        for c in np.asarray(p, dtype=float)[::-1]:  # Horner
+            out = out * x + float(c)
+        return out
