@@ -9,7 +9,7 @@ from ident.metrics import Comparison, compare, fit_percent, mse, nrmse, rms
 from ident.multiple_model import MultipleModel, quantile_edges
 from ident.preprocessing import Normalizer, arrhenius_transform, finite_difference, normalize_split
 
-# from ident.rpem import RecursivePEM  (added by the RPEM owner once ident/rpem is in place)
+from ident.rpem import RecursivePEM
 
 __all__ = [
     "ARX",
@@ -25,6 +25,7 @@ __all__ = [
     "NotFittedError",
     "OutputError",
     "RandomSteps",
+    "RecursivePEM",
     "StateSpaceModel",
     "StateSpacePEM",
     "arrhenius_transform",
