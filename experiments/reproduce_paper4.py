@@ -12,7 +12,8 @@ M-II   OutputError, nb = nf = 2, nk = 1 per input
 M-III  Wiener: M-II's structure + output saturation at w_min = -mean(y)/SD(y) (zero NOx), started from M-II
 M-IV   Hammerstein-Wiener: temperature through exp(-a/T), a = 1e4 K fixed, normalised; saturation as M-III
 M-V    Hammerstein-Wiener: M-IV's (normalised) inputs through continuous piecewise-linear functions with 9, 5, 9, 5
-       segments (knots at estimation-data quantiles, values estimated); saturation as M-III
+       segments (knots at estimation-data quantiles, values estimated, held constant beyond the estimation range);
+       saturation as M-III
 =====  ==========================================================================================================
 
     python -m experiments.reproduce_paper4 [--json PATH] [--seed 0] [--no-plots]
@@ -35,7 +36,7 @@ from ident.hammerstein_wiener import Arrhenius, HammersteinWiener, Identity, Pie
 from ident.linear import OutputError, StateSpacePEM
 from ident.metrics import compare
 from ident.plant_data import PAPER4_N_ESTIMATION, PAPER4_N_SAMPLES, whtc_dataset
-from ident.preprocessing import ARRHENIUS_A_K, Normalizer, arrhenius_transform
+from ident.preprocessing import ARRHENIUS_A_K, Normalizer
 
 #: Paper IV Table 2: estimation FIT %, estimation MSE, validation FIT %, validation MSE.
 PUBLISHED = {"M-I": (61.76, 0.156, 40.33, 0.245), "M-II": (68.93, 0.103, 38.92, 0.256),
@@ -93,8 +94,8 @@ def fit_models(ds: IODataset, n_estimation: int = PAPER4_N_ESTIMATION, output: i
             model, data = HammersteinWiener(input_blocks=blocks, output_block=Saturation(lower=w_min)), (he, hv)
         elif name == "M-V":
             segs = PWL_SEGMENTS if n_in == len(PWL_SEGMENTS) else (5,) * n_in
-            model = HammersteinWiener(input_blocks=[PiecewiseLinear(n_segments=s) for s in segs],
-                                      output_block=Saturation(lower=w_min))
+            pwl = [PiecewiseLinear(n_segments=s, extrapolation="constant") for s in segs]
+            model = HammersteinWiener(input_blocks=pwl, output_block=Saturation(lower=w_min))
             data = (ve, vv)
         else:
             raise ValueError(f"unknown model {name!r}")

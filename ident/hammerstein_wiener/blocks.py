@@ -189,7 +189,9 @@ class Arrhenius(StaticNonlinearity):
 
 @_register
 class PiecewiseLinear(StaticNonlinearity):
-    """Continuous piecewise-linear function with ``n_segments`` segments, linear extrapolation beyond the ends.
+    """Continuous piecewise-linear function with ``n_segments`` segments; beyond the outer knots linear
+    (``extrapolation="linear"``, MATLAB ``pwlinear``'s choice) or constant (``"constant"``: the function is held at
+    its end values, so inputs outside the estimation range are not extrapolated along a slope no data supported).
 
     Parametrised by its values at the ``n_segments + 1`` knots (starting as the identity), plus the knots themselves
     when ``estimate_knots``. Knots default to equally spaced quantiles of the estimation data (so each segment holds
@@ -205,14 +207,17 @@ class PiecewiseLinear(StaticNonlinearity):
         Estimate the values at the knots.
     estimate_knots : bool
         Estimate the knots too (the fit keeps them increasing by rejecting steps that reorder them).
+    extrapolation : {"linear", "constant"}
+        Behaviour beyond the outer knots.
     """
 
     def __init__(self, n_segments: int = 5, knots: Sequence[float] | None = None, estimate: bool = True,
-                 estimate_knots: bool = False) -> None:
+                 estimate_knots: bool = False, extrapolation: str = "linear") -> None:
         self.n_segments = n_segments
         self.knots = knots
         self.estimate = estimate
         self.estimate_knots = estimate_knots
+        self.extrapolation = extrapolation
 
     def _k(self) -> int:
         return int(self.n_segments) + 1
@@ -226,6 +231,8 @@ class PiecewiseLinear(StaticNonlinearity):
     def initial_params(self, x: np.ndarray) -> np.ndarray:
         if int(self.n_segments) != self.n_segments or self.n_segments < 1:
             raise ValueError(f"n_segments must be a positive integer, got {self.n_segments}")
+        if self.extrapolation not in ("linear", "constant"):
+            raise ValueError(f"extrapolation must be 'linear' or 'constant', got {self.extrapolation!r}")
         if self.knots is None:
             knots = np.quantile(_x(x), np.linspace(0.0, 1.0, self._k()))
             if np.any(np.diff(knots) <= 0):
@@ -251,6 +258,8 @@ class PiecewiseLinear(StaticNonlinearity):
         or > 1 in the extrapolated ends)."""
         j = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, knots.size - 2)
         t = (x - knots[j]) / (knots[j + 1] - knots[j])
+        if getattr(self, "extrapolation", "linear") == "constant":
+            t = np.clip(t, 0.0, 1.0)
         return j, t
 
     def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -262,8 +271,9 @@ class PiecewiseLinear(StaticNonlinearity):
     def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
         x = _x(x)
         knots, vals = self._split(p)
-        j, _ = self._segment(x, knots)
-        return (vals[j + 1] - vals[j]) / (knots[j + 1] - knots[j])
+        j, _t = self._segment(x, knots)
+        inside = (x >= knots[0]) & (x <= knots[-1]) if self.extrapolation == "constant" else True
+        return np.where(inside, (vals[j + 1] - vals[j]) / (knots[j + 1] - knots[j]), 0.0)
 
     def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
         x = _x(x)
@@ -279,6 +289,8 @@ class PiecewiseLinear(StaticNonlinearity):
         # v = vals_j + (x - k_j) / (k_{j+1} - k_j) * dvals
         h = knots[j + 1] - knots[j]
         slope = (vals[j + 1] - vals[j]) / h
+        if self.extrapolation == "constant":  # held end values do not move with the knots
+            slope = np.where((x >= knots[0]) & (x <= knots[-1]), slope, 0.0)
         dk = np.zeros((x.size, k))
         dk[rows, j] = -slope + slope * t          # d/dk_j: -(slope) + (x-k_j) slope / h
         dk[rows, j + 1] += -slope * t             # d/dk_{j+1}: -(x - k_j) slope / h
@@ -289,6 +301,8 @@ class PiecewiseLinear(StaticNonlinearity):
 
         knots, vals = self._split(np.asarray(p, dtype=float))
         slopes = np.diff(vals) / np.diff(knots)
+        if self.extrapolation == "constant":
+            x = ca.fmin(ca.fmax(x, float(knots[0])), float(knots[-1]))
         # v = vals_0 + s_0 (x - k_0) + sum_j (s_j - s_{j-1}) max(x - k_j, 0): exact, linear beyond both ends
         out = float(vals[0]) + float(slopes[0]) * (x - float(knots[0]))
         for j in range(1, slopes.size):

@@ -25,6 +25,8 @@ BLOCKS = [
     (Identity(), np.linspace(-2, 2, 41)),
     (Arrhenius(a=3000.0, estimate=True), np.linspace(450, 650, 41)),
     (PiecewiseLinear(4, estimate_knots=True), np.linspace(-3, 3, 41)),
+    (PiecewiseLinear(3, knots=[-1.0, 0.0, 0.5, 1.5], estimate_knots=True, extrapolation="constant"),
+     np.linspace(-3, 3, 41)),
     (Saturation(-0.5, 1.2, estimate=True), np.linspace(-2, 2, 41)),
     (DeadZone(-0.3, 0.4), np.linspace(-2, 2, 41)),
     (Polynomial(3, coefficients=[0.1, 1.0, -0.3, 0.2]), np.linspace(-2, 2, 41)),
