@@ -169,7 +169,7 @@ class FeedforwardPI:
         alpha = dt / 5.0  # 5 s filter of the error for the sign check
         self._err_f += alpha * (err - self._err_f)
         self._hist.append((self._c, self._err_f))
-        n_check = max(int(round(self.check_window_s / dt)), 1)
+        n_check = max(round(self.check_window_s / dt), 1)
         if len(self._hist) > n_check:
             c_old, e_old = self._hist[-n_check - 1]
             self._hist = self._hist[-n_check - 1:]

@@ -1,0 +1,326 @@
+"""Prediction models for :class:`control.mpc.NonlinearMPC`: the first-principles catalyst (oracle) and an adapter
+for any identified model of :mod:`ident`.
+
+:class:`FirstPrinciplesModel`
+    The catalyst of :mod:`scr_env` with the packed parameters of the episode (``env.catalyst_params_array``) and
+    its privileged state (``env.state``: cell coverages and solid temperatures), both read through ``attach(env)``.
+    The chemistry is the one-source :func:`scr_env.physics.cell.cell_balance` (CasADi backend); the discretisation
+    is the plant's own -- implicit Euler of the coverage, cells in flow order -- written as collocation equality
+    constraints of the NLP instead of an inner Newton solve, so the NLP stays one SX problem (at a solution the
+    stages equal :func:`scr_env.casadi_model.catalyst_step`, ``tests/control/test_models.py``). The solid
+    temperatures do not depend on the dosing: they are propagated numerically (the kernel's closed-form implicit
+    Euler) over the horizon and the rate constants enter the NLP as stage parameters.
+
+    Terminal cost: a value ``storage_value_g_per_mol`` for each stored mol of NH3 (it converts NOx later) and a
+    quadratic penalty on coverage above a *safe coverage* per cell: the coverage whose desorption, at the hottest
+    cell temperature predicted over the next ``lookahead_s`` seconds (cycle preview when given, else the current
+    temperature), would put ``safe_slip_ppm`` of NH3 into the gas. This is what lets the oracle fill the storage at
+    low temperature and empty it before a heat-up.
+
+:class:`IdentifiedModelAdapter`
+    Any fitted model with ``to_casadi() -> Function('step', [x, u], [x_next, y])`` on normalised signals; the
+    adapter maps the physical signals to the model's inputs and its outputs back to (tailpipe NOx ppm, NH3 ppm),
+    and estimates the state with :class:`control.estimation.ExtendedKalmanFilter` from the measured signals only.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import casadi as ca
+import numba
+import numpy as np
+
+from scr_env.constants import EXHAUST_HEAT_CAPACITY_J_KG_K, EXHAUST_MOLAR_MASS_KG_MOL, NH3_MOL_PER_G_ADBLUE
+from scr_env.params import DosingParams, P
+from scr_env.physics.backends import casadi_functions, cell_balance_nb
+
+_KIN = slice(P["a_ads"], P["o2_order_ox"] + 1)
+_EXP_CP = EXHAUST_MOLAR_MASS_KG_MOL * EXHAUST_HEAT_CAPACITY_J_KG_K
+_MIN_Q = 1e-12
+_N_K = 9  # rate constants per cell
+
+
+@numba.njit(cache=True)
+def _thermal_sequence(temps: np.ndarray, flow: np.ndarray, t_in: np.ndarray, c: float, ua: float, loss: float,
+                      t_amb: float, dt: float, exp_cp: float) -> np.ndarray:
+    """Solid temperatures [K] after each of len(flow) steps (rows): the kernel's closed-form implicit Euler of the
+    thermal balance, cells in flow order."""
+    n = temps.size
+    out = np.empty((flow.size, n))
+    t = temps.copy()
+    for k in range(flow.size):
+        mcp = flow[k] * exp_cp
+        decay = np.exp(-ua / mcp) if mcp > 0 else 0.0
+        coupling = mcp * (1.0 - decay)
+        t_gas = t_in[k]
+        for j in range(n):
+            t_new = (c * t[j] + dt * (coupling * t_gas + loss * t_amb)) / (c + dt * (coupling + loss))
+            t[j] = t_new
+            t_gas = t_new + (t_gas - t_new) * decay
+        out[k] = t
+    return out
+
+
+@numba.njit(cache=True)
+def _safe_coverage(k: np.ndarray, q: float, target: float) -> float:
+    """Coverage whose desorption into NH3- and NOx-free gas gives the mole fraction ``target`` (bisection)."""
+    lo, hi = 0.0, 1.0
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        y = cell_balance_nb(mid, q, 0.0, 0.0, 0.0, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7], k[8])[2]
+        if y < target:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def _rate_constants_function(params: np.ndarray, o2_fraction: float) -> ca.Function:
+    """Function mapping a row of temperatures [K] to the (9, n) rate constants of cell_balance."""
+    rate_constants = casadi_functions()[1]
+    t = ca.SX.sym("t")
+    k = ca.vertcat(*rate_constants(t, o2_fraction, *[float(v) for v in params[_KIN]]))
+    return ca.Function("k", [t], [k])
+
+
+class FirstPrinciplesModel:
+    """The oracle's model (module docstring). Needs ``attach(env)`` before use.
+
+    Parameters
+    ----------
+    o2_fraction : inlet O2 mole fraction [-] (the environment's constant).
+    dosing : urea decomposition parameters (default :class:`DosingParams`).
+    storage_value_g_per_mol : terminal value of stored NH3 [g AdBlue equivalent per mol].
+    safe_slip_ppm : desorption level that defines the safe coverage [ppm].
+    lookahead_s : how far ahead the hottest temperature is sought [s] (needs the preview to see further than now).
+    cap_weight : terminal penalty per (coverage above the safe coverage)^2 per cell.
+    use_preview : look ``lookahead_s`` ahead in the cycle preview (``env.disturbance_preview``) for the safe
+        coverage; False uses the horizon's temperatures only.
+    """
+
+    def __init__(self, o2_fraction: float = 0.10, dosing: DosingParams | None = None,
+                 storage_value_g_per_mol: float = 200.0, safe_slip_ppm: float = 20.0, lookahead_s: float = 120.0,
+                 cap_weight: float = 2.0e4, use_preview: bool = True) -> None:
+        self.o2_fraction = o2_fraction
+        self.dosing = dosing
+        self.storage_value_g_per_mol = storage_value_g_per_mol
+        self.safe_slip_ppm = safe_slip_ppm
+        self.lookahead_s = lookahead_s
+        self.cap_weight = cap_weight
+        self.use_preview = use_preview
+        self._env = None
+        self._params: np.ndarray | None = None
+
+    # --- sizes ---------------------------------------------------------------------------------------------------
+    @property
+    def n_cells(self) -> int:
+        if self._params is None:
+            raise RuntimeError("FirstPrinciplesModel needs attach(env) before use (privileged catalyst parameters)")
+        return int(self._params[P["n_cells"]])
+
+    @property
+    def nx(self) -> int:
+        return self.n_cells
+
+    @property
+    def n_stage_params(self) -> int:
+        return 4 + _N_K * self.n_cells  # q, y_nh3 per g/s, y_no_in, y_no2_in, rate constants per cell
+
+    @property
+    def n_terminal_params(self) -> int:
+        return self.n_cells  # safe coverage per cell
+
+    def attach(self, env: Any) -> None:
+        self._env = env
+        params = np.asarray(env.catalyst_params_array, dtype=np.float64)
+        if self._params is None or not np.array_equal(params, self._params):
+            self._params = params
+            self._k_fun = _rate_constants_function(params, self.o2_fraction)
+            self._k_map: dict[int, ca.Function] = {}
+
+    def _constants(self, temperatures_k: np.ndarray) -> np.ndarray:
+        """(len, 9) rate constants at the given temperatures [K]."""
+        t = np.asarray(temperatures_k, dtype=np.float64).ravel()
+        f = self._k_map.get(t.size)
+        if f is None:
+            f = self._k_map[t.size] = self._k_fun.map(t.size)
+        return np.asarray(f(t[None, :])).T
+
+    def reset(self, observation: np.ndarray) -> None:
+        pass
+
+    def state_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.zeros(self.nx), np.ones(self.nx)
+
+    # --- symbolic stage --------------------------------------------------------------------------------------------
+    def _cells(self, x_next: Any, u: Any, p: Any) -> tuple[list, tuple]:
+        cell_balance = casadi_functions()[0]
+        q, c_nh3, y_no, y_no2 = p[0], p[1], p[2], p[3]
+        y_nh3 = c_nh3 * u
+        g = []
+        for j in range(self.n_cells):
+            k = [p[4 + _N_K * j + i] for i in range(_N_K)]
+            r = cell_balance(x_next[j], q, y_nh3, y_no, y_no2, *k)
+            g.append(r[0])
+            y_nh3, y_no, y_no2 = r[2], r[3], r[4]
+        return g, (y_nh3, y_no, y_no2)
+
+    def residual(self, x_next: Any, x: Any, u: Any, d: Any, p: Any, h: float) -> Any:
+        g, _ = self._cells(x_next, u, p)
+        return ca.vertcat(*[(x_next[j] - x[j]) / h - g[j] for j in range(self.n_cells)])
+
+    def outputs(self, x_next: Any, x: Any, u: Any, d: Any, p: Any) -> Any:
+        _, (y_nh3, y_no, y_no2) = self._cells(x_next, u, p)
+        return ca.vertcat((y_no + y_no2) * 1e6, y_nh3 * 1e6)
+
+    def terminal_cost(self, x: Any, p: Any) -> Any:
+        sites = self._params[P["sites_per_cell_mol"]]
+        cost = 0
+        for j in range(self.n_cells):
+            cost += -self.storage_value_g_per_mol * sites * x[j] + self.cap_weight * ca.fmax(x[j] - p[j], 0) ** 2
+        return cost
+
+    # --- numeric preparation ----------------------------------------------------------------------------------
+    def safe_coverage(self, temperature_k: float, flow_mol_s: float) -> float:
+        """Coverage [-] whose desorption into NH3-free gas gives ``safe_slip_ppm`` at this temperature and flow."""
+        q = max(flow_mol_s / self._params[P["sites_per_cell_mol"]], _MIN_Q)
+        return float(_safe_coverage(self._constants(np.array([temperature_k]))[0], q, self.safe_slip_ppm * 1e-6))
+
+    def _temperatures(self, temps: np.ndarray, rows: np.ndarray, dt: float) -> np.ndarray:
+        p = self._params
+        return _thermal_sequence(temps, np.ascontiguousarray(rows[:, 0]), np.ascontiguousarray(rows[:, 1]),
+                                 p[P["heat_capacity_per_cell_j_k"]], p[P["gas_solid_ua_per_cell_w_k"]],
+                                 p[P["ambient_loss_per_cell_w_k"]], p[P["ambient_temperature_k"]], dt, _EXP_CP)
+
+    def prepare(self, observation: np.ndarray, u_prev_g_s: float, disturbances: np.ndarray, h: float,
+                dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        env, p = self._env, self._params
+        st = env.state
+        theta = np.clip(st["nh3_coverage"], 0.0, 1.0)
+        temps0 = st["temperature_k"].astype(np.float64)
+        dose = self.dosing or DosingParams()
+        sites = p[P["sites_per_cell_mol"]]
+        H, n = disturbances.shape[0], self.n_cells
+        n_sub = max(round(h / dt), 1)
+        # stage temperatures: the held stage disturbance over n_sub intervals of dt (end of each stage)
+        temps = self._temperatures(temps0, np.repeat(disturbances, n_sub, axis=0), dt)[n_sub - 1::n_sub]
+        flow, t_in, nox, no2f = disturbances.T
+        eta = 1.0 / (1.0 + np.exp(-(t_in - dose.decomposition_t50_k) / dose.decomposition_width_k))
+        pst = np.empty((H, self.n_stage_params))
+        pst[:, 0] = np.maximum(flow / sites, _MIN_Q)
+        pst[:, 1] = eta * NH3_MOL_PER_G_ADBLUE / np.maximum(flow, _MIN_Q * sites)
+        pst[:, 2] = nox * 1e-6 * (1.0 - no2f)
+        pst[:, 3] = nox * 1e-6 * no2f
+        pst[:, 4:] = self._constants(temps.ravel()).reshape(H, n * _N_K)
+        t_hot = np.maximum(temps.max(axis=0), temps0)
+        # hottest temperature further ahead, from the cycle preview (privileged) if the model is given one
+        n_far = int(self.lookahead_s / dt) - H * n_sub
+        if n_far > 0 and self.use_preview:
+            far = env.disturbance_preview(H * n_sub + n_far)[H * n_sub:]
+            t_far = self._temperatures(temps[-1], far, dt)
+            t_hot = np.maximum(t_hot, t_far.max(axis=0))
+        flow_ref = float(np.mean(flow))
+        kh = self._constants(t_hot)
+        q = max(flow_ref / sites, _MIN_Q)
+        cap = np.array([_safe_coverage(kh[j], q, self.safe_slip_ppm * 1e-6) for j in range(n)])
+        return theta, pst, cap
+
+
+class IdentifiedModelAdapter:
+    """An identified model (``to_casadi()`` on normalised signals) as a :class:`control.mpc.PredictionModel`.
+
+    The model's inputs are, in order, built from the MPC's physical signals by ``input_map``; its outputs are
+    de-normalised and ``output_indices`` pick (tailpipe NOx ppm, NH3 ppm) for the objective and the slip
+    constraint. The state is estimated with an :class:`~control.estimation.ExtendedKalmanFilter` from the
+    ``measured_output`` (default: the tailpipe NOx sensor, output 3 of :mod:`ident.plant_data` data sets) only.
+
+    Parameters
+    ----------
+    model : fitted model with ``to_casadi()``.
+    input_mean, input_scale, output_mean, output_scale : normalisation of the identification data
+        (``Normalizer.mean_`` / ``scale_``); z = (x - mean) / scale.
+    input_map : ``f(adblue_g_s, d) -> list`` of the model's physical inputs from the dose [g/s] and the
+        disturbance ``d = (flow mol/s, inlet T K, NOx ppm, NO2 fraction)`` (works on CasADi symbols and floats).
+        Default: :func:`plant_data_inputs` (inlet NOx ppm, urea g/min, inlet T K, flow mol/s).
+    output_indices : indices of (tailpipe NOx ppm, NH3 ppm) among the model outputs.
+    measured_output : index of the output the EKF corrects with (the observation's tailpipe sensor, obs[3]).
+    process_noise, measurement_noise : EKF covariances (normalised units).
+    """
+
+    n_terminal_params = 0
+    n_stage_params = 0
+
+    def __init__(self, model: Any, input_mean: Sequence[float], input_scale: Sequence[float],
+                 output_mean: Sequence[float], output_scale: Sequence[float],
+                 input_map: Callable[[Any, Any], list] | None = None, output_indices: tuple[int, int] = (0, 1),
+                 measured_output: int = 2, process_noise: float = 1e-3, measurement_noise: float = 1e-2,
+                 state_bound: float = 50.0) -> None:
+        self.model = model
+        self.input_mean = input_mean
+        self.input_scale = input_scale
+        self.output_mean = output_mean
+        self.output_scale = output_scale
+        self.input_map = input_map
+        self.output_indices = output_indices
+        self.measured_output = measured_output
+        self.process_noise = process_noise
+        self.measurement_noise = measurement_noise
+        self.state_bound = state_bound
+        from control.estimation import ExtendedKalmanFilter
+
+        self.step_ = model.to_casadi()
+        self.nx = int(self.step_.size1_in(0))
+        self._um, self._us = np.asarray(input_mean, float), np.asarray(input_scale, float)
+        self._ym, self._ys = np.asarray(output_mean, float), np.asarray(output_scale, float)
+        bounds = (np.full(self.nx, -state_bound), np.full(self.nx, state_bound))
+        self.ekf_ = ExtendedKalmanFilter(self.step_, process_noise, measurement_noise, measured=[measured_output],
+                                         state_bounds=bounds)
+        self._u_last: np.ndarray | None = None
+
+    def _u_norm(self, adblue: Any, d: Any) -> Any:
+        f = self.input_map or plant_data_inputs
+        phys = f(adblue, d)
+        return [(phys[i] - self._um[i]) / self._us[i] for i in range(len(phys))]
+
+    def residual(self, x_next: Any, x: Any, u: Any, d: Any, p: Any, h: float) -> Any:
+        return x_next - self.step_(x, ca.vertcat(*self._u_norm(u, d)))[0]
+
+    def outputs(self, x_next: Any, x: Any, u: Any, d: Any, p: Any) -> Any:
+        y = self.step_(x, ca.vertcat(*self._u_norm(u, d)))[1]
+        i, j = self.output_indices
+        return ca.vertcat(y[i] * self._ys[i] + self._ym[i], y[j] * self._ys[j] + self._ym[j])
+
+    def terminal_cost(self, x: Any, p: Any) -> Any:
+        return 0
+
+    def state_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.full(self.nx, -self.state_bound), np.full(self.nx, self.state_bound)
+
+    def attach(self, env: Any) -> None:
+        pass
+
+    def reset(self, observation: np.ndarray) -> None:
+        self.ekf_.reset()
+        self._u_last = None
+
+    def prepare(self, observation: np.ndarray, u_prev_g_s: float, disturbances: np.ndarray, h: float,
+                dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        obs = np.asarray(observation, dtype=np.float64)
+        d_now = np.array([obs[2], obs[1], obs[0], disturbances[0, 3]])
+        u_now = np.asarray(self._u_norm(u_prev_g_s, d_now), dtype=np.float64)
+        if self._u_last is not None:
+            # obs[3] was measured after the last interval, whose input was the applied dose u_prev_g_s under the
+            # disturbance now measured: correct x_{k-1} with (u_{k-1}, y_{k-1}), then propagate to x_k
+            k = self.measured_output
+            self.ekf_.step(u_now, np.array([(obs[3] - self._ym[k]) / self._ys[k]]))
+        self._u_last = u_now
+        # the MPC steps the model with stage length h; identified models have the data's dt: one model step per
+        # stage is used when h == dt, else the same step (the MPC is built with stage_steps=1 for these models)
+        return self.ekf_.x_.copy(), np.zeros((disturbances.shape[0], 0)), np.zeros(0)
+
+
+def plant_data_inputs(adblue_g_s: Any, d: Any) -> list:
+    """Physical inputs of :mod:`ident.plant_data` models: inlet NOx ppm, urea g/min (AdBlue g/s * 60 * 0.325),
+    inlet temperature K, exhaust flow mol/s."""
+    return [d[2], adblue_g_s * 60.0 * 0.325, d[1], d[0]]
