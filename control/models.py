@@ -246,6 +246,10 @@ class IdentifiedModelAdapter:
     output_indices : indices of (tailpipe NOx ppm, NH3 ppm) among the model outputs.
     measured_output : index of the output the EKF corrects with (the observation's tailpipe sensor, obs[3]).
     process_noise, measurement_noise : EKF covariances (normalised units).
+    state_bounds : (lower, upper) of the model state (NLP bounds and EKF clipping); default +/-50.
+    initial_state : ``f(observation) -> x0`` at episode start (default zeros).
+    model_dt : sample time of the model [s]; a stage of the MPC is round(h / model_dt) model steps.
+    terminal_cost : optional ``f(x) -> SX`` terminal cost of the MPC.
     """
 
     n_terminal_params = 0
@@ -254,8 +258,10 @@ class IdentifiedModelAdapter:
     def __init__(self, model: Any, input_mean: Sequence[float], input_scale: Sequence[float],
                  output_mean: Sequence[float], output_scale: Sequence[float],
                  input_map: Callable[[Any, Any], list] | None = None, output_indices: tuple[int, int] = (0, 1),
-                 measured_output: int = 2, process_noise: float = 1e-3, measurement_noise: float = 1e-2,
-                 state_bound: float = 50.0) -> None:
+                 measured_output: int = 2, process_noise: float | np.ndarray = 1e-3,
+                 measurement_noise: float = 1e-2, state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                 initial_state: Callable[[np.ndarray], np.ndarray] | None = None, model_dt: float = 0.5,
+                 terminal_cost: Callable[[Any], Any] | None = None) -> None:
         self.model = model
         self.input_mean = input_mean
         self.input_scale = input_scale
@@ -266,14 +272,18 @@ class IdentifiedModelAdapter:
         self.measured_output = measured_output
         self.process_noise = process_noise
         self.measurement_noise = measurement_noise
-        self.state_bound = state_bound
+        self.state_bounds_arg = state_bounds
+        self.initial_state = initial_state
+        self.model_dt = model_dt
+        self.terminal_cost_fn = terminal_cost
         from control.estimation import ExtendedKalmanFilter
 
         self.step_ = model.to_casadi()
         self.nx = int(self.step_.size1_in(0))
         self._um, self._us = np.asarray(input_mean, float), np.asarray(input_scale, float)
         self._ym, self._ys = np.asarray(output_mean, float), np.asarray(output_scale, float)
-        bounds = (np.full(self.nx, -state_bound), np.full(self.nx, state_bound))
+        bounds = state_bounds or (np.full(self.nx, -50.0), np.full(self.nx, 50.0))
+        self._bounds = (np.asarray(bounds[0], float), np.asarray(bounds[1], float))
         self.ekf_ = ExtendedKalmanFilter(self.step_, process_noise, measurement_noise, measured=[measured_output],
                                          state_bounds=bounds)
         self._u_last: np.ndarray | None = None
@@ -283,25 +293,35 @@ class IdentifiedModelAdapter:
         phys = f(adblue, d)
         return [(phys[i] - self._um[i]) / self._us[i] for i in range(len(phys))]
 
+    def _simulate(self, x: Any, u: Any, d: Any, h: float) -> tuple[Any, Any]:
+        """Model steps of model_dt over one stage of length h (input held): (x at the end, y of the last step)."""
+        un = ca.vertcat(*self._u_norm(u, d))
+        y = None
+        for _ in range(max(round(h / self.model_dt), 1)):
+            x, y = self.step_(x, un)
+        return x, y
+
     def residual(self, x_next: Any, x: Any, u: Any, d: Any, p: Any, h: float) -> Any:
-        return x_next - self.step_(x, ca.vertcat(*self._u_norm(u, d)))[0]
+        self._h = h
+        return x_next - self._simulate(x, u, d, h)[0]
 
     def outputs(self, x_next: Any, x: Any, u: Any, d: Any, p: Any) -> Any:
-        y = self.step_(x, ca.vertcat(*self._u_norm(u, d)))[1]
+        y = self._simulate(x, u, d, self._h)[1]
         i, j = self.output_indices
         return ca.vertcat(y[i] * self._ys[i] + self._ym[i], y[j] * self._ys[j] + self._ym[j])
 
     def terminal_cost(self, x: Any, p: Any) -> Any:
-        return 0
+        return 0 if self.terminal_cost_fn is None else self.terminal_cost_fn(x)
 
     def state_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        return np.full(self.nx, -self.state_bound), np.full(self.nx, self.state_bound)
+        return self._bounds
 
     def attach(self, env: Any) -> None:
         pass
 
     def reset(self, observation: np.ndarray) -> None:
-        self.ekf_.reset()
+        x0 = None if self.initial_state is None else self.initial_state(np.asarray(observation, dtype=np.float64))
+        self.ekf_.reset(x0)
         self._u_last = None
 
     def prepare(self, observation: np.ndarray, u_prev_g_s: float, disturbances: np.ndarray, h: float,
@@ -315,8 +335,6 @@ class IdentifiedModelAdapter:
             k = self.measured_output
             self.ekf_.step(u_now, np.array([(obs[3] - self._ym[k]) / self._ys[k]]))
         self._u_last = u_now
-        # the MPC steps the model with stage length h; identified models have the data's dt: one model step per
-        # stage is used when h == dt, else the same step (the MPC is built with stage_steps=1 for these models)
         return self.ekf_.x_.copy(), np.zeros((disturbances.shape[0], 0)), np.zeros(0)
 
 

@@ -146,6 +146,7 @@ class NonlinearMPC:
         self._lam_g0: np.ndarray | None = None
         self._u_prev = 0.0
         self.last_plan_: dict[str, np.ndarray] | None = None
+        self.status_counts_: dict[str, int] = {}
 
     # ------------------------------------------------------------------------------------------------- the NLP
     def _build(self) -> None:
@@ -259,6 +260,8 @@ class NonlinearMPC:
         sol = self._solver(**args)
         st = self._solver.stats()
         self._iters.append(int(st.get("iter_count", 0)))
+        status = str(st.get("return_status", ""))
+        self.status_counts_[status] = self.status_counts_.get(status, 0) + 1
         wopt = np.asarray(sol["x"]).ravel()
         if not st.get("success", False) or not np.all(np.isfinite(wopt)):
             return None

@@ -1,0 +1,169 @@
+"""A grey-box NH3-storage model identified from open-loop excitation data, for the identified-model MPC.
+
+The linear models of :mod:`ident.linear` fit the SCR poorly (negative simulation fit on a WHTC validation set:
+the plant is bilinear in coverage and NOx and Arrhenius in temperature). This is the classic control-oriented SCR
+model instead [lit: Upadhyay and Van Nieuwstadt 2006; Schaer et al. 2006], with its parameters *identified* by
+simulation-error least squares (CasADi AD Jacobians, scipy ``least_squares``) from the signals of
+:mod:`ident.plant_data` data sets only: inputs [inlet NOx ppm, urea g/min, inlet T K, exhaust flow mol/s],
+outputs [tailpipe NOx ppm, NH3 ppm, NOx sensor ppm]. It satisfies :class:`ident.base.DynamicModel`
+(``predict``, ``to_casadi() -> Function('step', [x, u], [x_next, y])``); it belongs in :mod:`ident` in the end.
+
+Structure (n_cells CSTRs in series sharing one lumped solid temperature; gas quasi-steady):
+
+    T+ = (C T + dt F cp T_in) / (C + dt F cp)                               (thermal inertia, implicit Euler)
+    y_NH3,out = (q y_NH3,in + k_des e^(g theta) theta) / (q + k_ads (1 - theta)),   q = F n / Omega
+    y_NOx,out = q y_NOx,in / (q + k_scr theta)
+    dtheta/dt = k_ads y_NH3,out (1 - theta) - k_des e^(g theta) theta - k_scr theta y_NOx,out - k_ox theta
+    theta+ = theta + dt g / max(1 - dt dg/dtheta, 1)                          (linearly implicit Euler: stiff-safe)
+    sensor = a NOx + b NH3                                                     (fitted afterwards, linear)
+
+with Arrhenius constants k(T) = A exp(-E / (R T)) and the urea decomposition eta(T_in) = logistic(T_in - t50).
+Initial guess: textbook Cu-zeolite magnitudes; 11 parameters (log multipliers and shifts) are identified. The
+state is x = [theta_1 .. theta_n, T]; :meth:`StorageGreyBox.initial_state` starts empty at the inlet temperature.
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+from scipy.optimize import least_squares
+
+R_GAS = 8.314462618
+_CP_MOL = 0.0289 * 1250.0  # J/(mol K) exhaust
+#: initial guess (textbook magnitudes for a Cu-zeolite brick of a 12 L engine; not the simulator's numbers)
+_NOMINAL = {"omega_mol": 8.0, "a_ads": 3.0e4, "a_des": 3.0e8, "e_des": 95e3, "gamma": 0.9, "a_scr": 2.0e8,
+            "e_scr": 65e3, "a_ox": 1.0e6, "e_ox": 110e3, "heat_j_k": 5.0e4, "t50_k": 450.0}
+N_PARAMS = 11
+
+
+class StorageGreyBox:
+    """Grey-box SCR storage model (module docstring), scikit-learn style.
+
+    Parameters
+    ----------
+    n_cells : cells in series.
+    dt : sample time [s].
+    max_nfev : least-squares evaluations.
+    nh3_weight : weight of the NH3 residual relative to NOx (both divided by their data SD).
+    """
+
+    def __init__(self, n_cells: int = 2, dt: float = 0.5, max_nfev: int = 40, nh3_weight: float = 2.0) -> None:
+        self.n_cells = n_cells
+        self.dt = dt
+        self.max_nfev = max_nfev
+        self.nh3_weight = nh3_weight
+
+    # --- the model, symbolic in the parameters ------------------------------------------------------------------
+    def _step_expr(self, x: ca.SX, u: ca.SX, p: ca.SX) -> tuple[ca.SX, ca.SX]:
+        nom, n, dt = _NOMINAL, int(self.n_cells), float(self.dt)
+        omega = nom["omega_mol"] * ca.exp(p[0])
+        gamma = nom["gamma"] * ca.exp(p[4])
+        e_des = nom["e_des"] * (1 + p[3])
+        e_scr = nom["e_scr"] * (1 + p[6])
+        heat = nom["heat_j_k"] * ca.exp(p[8])
+        t50 = nom["t50_k"] + 10.0 * p[9]
+        e_ox = nom["e_ox"] * (1 + p[10])
+        nox_ppm, urea_g_min, t_in, flow = u[0], u[1], u[2], ca.fmax(u[3], 1e-3)
+        t_old = x[n]
+        t = (heat * t_old + dt * flow * _CP_MOL * t_in) / (heat + dt * flow * _CP_MOL)
+        c_tot = 101325.0 / (R_GAS * t)
+        k_ads = nom["a_ads"] * ca.exp(p[1]) * c_tot
+        k_des = nom["a_des"] * ca.exp(p[2]) * ca.exp(-e_des / (R_GAS * t))
+        eg = gamma * e_des / (R_GAS * t)
+        k_scr = nom["a_scr"] * ca.exp(p[5]) * ca.exp(-e_scr / (R_GAS * t))
+        k_ox = nom["a_ox"] * ca.exp(p[7]) * ca.exp(-e_ox / (R_GAS * t))
+        eta = 1.0 / (1.0 + ca.exp(-(t_in - t50) / 10.0))
+        y_nh3 = eta * ca.fmax(urea_g_min, 0) / 60.0 / 60.06 * 2.0 / flow
+        y_nox = ca.fmax(nox_ppm, 0) * 1e-6
+        q = flow * n / omega
+        th = ca.SX.sym("th")
+        xs = []
+        for j in range(n):
+            def gas(theta, y_nh3=y_nh3, y_nox=y_nox):
+                r_des = k_des * ca.exp(eg * theta) * theta
+                yn = (q * y_nh3 + r_des) / (q + k_ads * (1 - theta))
+                yx = q * y_nox / (q + k_scr * theta)
+                g = k_ads * yn * (1 - theta) - r_des - k_scr * theta * yx - k_ox * theta
+                return g, yn, yx
+            g_th = gas(th)[0]
+            dg = ca.substitute(ca.jacobian(g_th, th), th, x[j])
+            g0 = gas(x[j])[0]
+            th_new = ca.fmin(ca.fmax(x[j] + dt * g0 / ca.fmax(1 - dt * dg, 1.0), 0.0), 1.0)
+            xs.append(th_new)
+            _, y_nh3, y_nox = gas(th_new)
+        return ca.vertcat(*xs, t), ca.vertcat(y_nox * 1e6, y_nh3 * 1e6)
+
+    def _functions(self) -> None:
+        n = int(self.n_cells)
+        x, u, p = ca.SX.sym("x", n + 1), ca.SX.sym("u", 4), ca.SX.sym("p", N_PARAMS)
+        xn, y = self._step_expr(x, u, p)
+        self._fp = ca.Function("step_p", [x, u, p], [xn, y])
+
+    # --- fitting ------------------------------------------------------------------------------------------------
+    def fit(self, u: np.ndarray, y: np.ndarray) -> StorageGreyBox:
+        """Identify from inputs ``u`` (n, 4) and outputs ``y`` (n, 3) (the :mod:`ident.plant_data` signals); a list
+        of (u, y) records may be given as ``u`` with ``y=None``."""
+        records = u if y is None else [(u, y)]
+        records = [(np.asarray(a, float), np.asarray(b, float)) for a, b in records]
+        self._functions()
+        n = int(self.n_cells)
+        p = ca.SX.sym("p", N_PARAMS)
+        res = []
+        for ur, yr in records:
+            sim = self._fp.mapaccum("sim", ur.shape[0], [0], [0])
+            x0 = np.r_[np.zeros(n), ur[0, 2]]
+            _, ys = sim(x0, ur.T, ca.repmat(p, 1, ur.shape[0]))
+            s_nox = max(float(np.std(yr[:, 0])), 1.0)
+            s_nh3 = max(float(np.std(yr[:, 1])), 1.0)
+            res.append(ca.vec((ys[0, :].T - yr[:, 0]) / s_nox))
+            res.append(self.nh3_weight * ca.vec((ys[1, :].T - yr[:, 1]) / s_nh3))
+        r = ca.vertcat(*res)
+        fr = ca.Function("r", [p], [r])
+        fj = ca.Function("j", [p], [ca.jacobian(r, p)])
+        sol = least_squares(lambda v: np.asarray(fr(v)).ravel(), np.zeros(N_PARAMS),
+                            jac=lambda v: np.asarray(fj(v)), bounds=(-5.0 * np.ones(N_PARAMS), 5.0 * np.ones(N_PARAMS)),
+                            max_nfev=self.max_nfev, x_scale=1.0)
+        self.params_ = sol.x
+        self.cost_ = float(sol.cost)
+        # sensor = a NOx + b NH3, linear least squares on the simulated outputs
+        A, b = [], []
+        for ur, yr in records:
+            ys = self.predict(ur)
+            A.append(ys[:, :2])
+            b.append(yr[:, 2])
+        self.sensor_gains_ = np.linalg.lstsq(np.vstack(A), np.concatenate(b), rcond=None)[0]
+        return self
+
+    @classmethod
+    def from_params(cls, params: np.ndarray, sensor_gains: np.ndarray, n_cells: int = 2,
+                    dt: float = 0.5) -> StorageGreyBox:
+        """A fitted model from identified numbers (``params_``, ``sensor_gains_``), e.g. read back from JSON."""
+        m = cls(n_cells=n_cells, dt=dt)
+        m._functions()
+        m.params_ = np.asarray(params, dtype=np.float64)
+        m.sensor_gains_ = np.asarray(sensor_gains, dtype=np.float64)
+        return m
+
+    # --- the DynamicModel protocol -----------------------------------------------------------------------------
+    def to_casadi(self) -> ca.Function:
+        """``Function('step', [x, u], [x_next, y])``, y = [tailpipe NOx ppm, NH3 ppm, sensor ppm] (physical units)."""
+        if not hasattr(self, "params_"):
+            raise RuntimeError("StorageGreyBox is not fitted yet: call fit(...) first")
+        n = int(self.n_cells)
+        x, u = ca.SX.sym("x", n + 1), ca.SX.sym("u", 4)
+        xn, y = self._step_expr(x, u, ca.DM(self.params_))
+        a, b = self.sensor_gains_
+        return ca.Function("step", [x, u], [xn, ca.vertcat(y, a * y[0] + b * y[1])], ["x", "u"], ["x_next", "y"])
+
+    def initial_state(self, u: np.ndarray, y: np.ndarray | None = None) -> np.ndarray:
+        """Empty storage at the first inlet temperature."""
+        return np.r_[np.zeros(int(self.n_cells)), float(np.asarray(u, float).reshape(-1, 4)[0, 2])]
+
+    def predict(self, u: np.ndarray, y0: np.ndarray | None = None) -> np.ndarray:
+        """Free-run simulation (n, 3) from :meth:`initial_state`."""
+        u = np.asarray(u, float)
+        f = self._fp.mapaccum("sim", u.shape[0], [0], [0])
+        _, ys = f(self.initial_state(u), u.T, np.tile(self.params_[:, None], (1, u.shape[0])))
+        ys = np.asarray(ys).T
+        if hasattr(self, "sensor_gains_"):
+            return np.column_stack([ys, ys @ self.sensor_gains_])
+        return ys

@@ -1,0 +1,202 @@
+"""Closed-loop benchmark of every dosing controller on the hot WHTC and WHSC.
+
+    python -m experiments.control_benchmark [--json PATH] [--quick] [--cycles whtc whsc] [--workers 2]
+
+Controllers: ``lookup_table`` and ``pi`` (control.baselines), ``mpc_identified`` (NMPC on a grey-box storage model
+identified from open-loop excitation data on random cycles, state by EKF from the measured signals only),
+``mpc_oracle`` (NMPC on the first-principles catalyst with privileged state and the cycle preview), and the shipped
+RL policies ``ppo`` / ``sac`` when :mod:`control.rl` provides them (skipped otherwise, and said so). Writes the KPI
+table, a JSON {"cycles": {cycle: {"controllers": {name: KPIs and timings}}}} and plots of the closed-loop
+trajectories to ``runs/control_benchmark/<stamp>/``. ``--quick``: the WHTC only, shorter oracle horizon.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from control.baselines import FeedforwardPI, LookupTableDosing
+from control.evaluation import EpisodeResult, comparison_table, evaluate
+from experiments._runs import run_folder, write_json
+
+CORE = ("lookup_table", "pi", "mpc_identified", "mpc_oracle")
+RL_NAMES = ("ppo", "sac")
+IDENT_SEEDS = (1, 2)  # random cycles of the identification experiments (never the benchmark cycles)
+REPORT_KEYS = ("nox_conversion", "engine_out_nox_g_per_kwh", "tailpipe_nox_g_per_kwh", "mean_nh3_slip_ppm",
+               "peak_nh3_slip_ppm", "adblue_g", "nh3_slip_g", "engine_work_kwh", "policy_time_ms_median",
+               "policy_time_ms_p95", "solver_failures", "solve_time_ms_median", "solve_time_ms_p95",
+               "solve_time_ms_max", "solver_iterations_mean")
+
+
+def identify(seeds: tuple[int, ...] = IDENT_SEEDS) -> dict[str, Any]:
+    """Identify the grey-box storage model from open-loop excitation data (random cycles); return its numbers."""
+    from control.identified import StorageGreyBox
+    from ident.excitation import RandomSteps
+    from ident.metrics import fit_percent
+    from ident.plant_data import excitation_dataset
+
+    exc = RandomSteps(-0.9, 0.7, 10.0, 120.0)
+    recs = [excitation_dataset("random", seed=s, base_anr=1.0, excitation=exc) for s in seeds]
+    t0 = time.perf_counter()
+    model = StorageGreyBox().fit([(r.u, r.y) for r in recs], None)
+    val = excitation_dataset("whtc", seed=99, base_anr=1.0, excitation=exc)
+    yp = model.predict(val.u)
+    return {"params": model.params_.tolist(), "sensor_gains": model.sensor_gains_.tolist(), "n_cells": model.n_cells,
+            "dt": model.dt, "fit_seconds": time.perf_counter() - t0, "data": f"excitation_dataset('random', seed in "
+            f"{list(seeds)}, base_anr=1.0, RandomSteps(-0.9, 0.7, 10 s, 120 s))",
+            "validation_fit_percent_whtc": {n: float(fit_percent(val.y[:, i], yp[:, i]))
+                                            for i, n in enumerate(("tailpipe_nox", "nh3", "sensor"))}}
+
+
+def identified_mpc(ident: dict[str, Any], quick: bool = False) -> Any:
+    """NMPC on the identified grey-box model, EKF on the tailpipe NOx sensor."""
+    from control.identified import StorageGreyBox
+    from control.models import IdentifiedModelAdapter
+    from control.mpc import NonlinearMPC
+
+    m = StorageGreyBox.from_params(ident["params"], ident["sensor_gains"], ident["n_cells"], ident["dt"])
+    n = m.n_cells
+    adapter = IdentifiedModelAdapter(
+        m, input_mean=np.zeros(4), input_scale=np.ones(4), output_mean=np.zeros(3), output_scale=np.ones(3),
+        output_indices=(0, 1), measured_output=2, process_noise=np.r_[np.full(n, 1e-6), 0.5],
+        measurement_noise=100.0, state_bounds=(np.r_[np.zeros(n), 250.0], np.r_[np.ones(n), 900.0]),
+        initial_state=lambda obs: np.r_[np.zeros(n), obs[1]], model_dt=ident["dt"])
+    return NonlinearMPC(adapter, horizon=10 if quick else 20, stage_steps=4, preview=False)
+
+
+def oracle_mpc(quick: bool = False) -> Any:
+    from control.models import FirstPrinciplesModel
+    from control.mpc import NonlinearMPC
+
+    return NonlinearMPC(FirstPrinciplesModel(), horizon=10 if quick else 20, stage_steps=4, preview=True)
+
+
+def make(name: str, ident: dict[str, Any] | None, quick: bool) -> Any:
+    if name == "lookup_table":
+        return LookupTableDosing()
+    if name == "pi":
+        return FeedforwardPI()
+    if name == "mpc_identified":
+        return identified_mpc(ident, quick)
+    if name == "mpc_oracle":
+        return oracle_mpc(quick)
+    from control.rl import load_policy
+
+    return load_policy(name)
+
+
+def available_rl() -> tuple[list[str], str]:
+    try:
+        from control.rl import available_policies
+    except Exception as exc:  # noqa: BLE001  (any import problem means: no RL policies to benchmark)
+        return [], f"control.rl not importable ({type(exc).__name__}: {exc})"
+    names = [n for n in RL_NAMES if n in available_policies()]
+    missing = [n for n in RL_NAMES if n not in names]
+    return names, (f"RL policies not shipped: {', '.join(missing)}" if missing else "")
+
+
+def _job(args: tuple[str, str, dict | None, bool]) -> EpisodeResult:
+    name, cycle, ident, quick = args
+    t0 = time.perf_counter()
+    res = evaluate(make(name, ident, quick), cycles=(cycle,), seeds=(0,), name=name, record_trajectory=True)[0]
+    res.stats["wall_time_s"] = time.perf_counter() - t0
+    return res
+
+
+def plot(results: list[EpisodeResult], cycle: str, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rs = [r for r in results if r.cycle == cycle and r.trajectory is not None]
+    if not rs:
+        return
+    fig, ax = plt.subplots(5, 1, figsize=(13, 13), sharex=True)
+    tr0 = rs[0].trajectory
+    t = tr0["time_s"]
+    ax[0].plot(t, tr0["inlet_temperature_k"] - 273.15, "k", lw=0.8)
+    ax[0].set_ylabel("SCR inlet T [C]")
+    ax[1].plot(t, tr0["engine_out_nox_ppm"], color="0.7", lw=0.6, label="engine-out")
+    for r in rs:
+        tr = r.trajectory
+        k = r.kpis
+        lab = f"{r.name} ({k.get('tailpipe_nox_g_per_kwh', np.nan):.3f} g/kWh, {k.get('mean_nh3_slip_ppm', np.nan):.1f} ppm)"
+        ax[1].plot(t, tr["tailpipe_nox_ppm"], lw=0.7, label=lab)
+        ax[2].plot(t, tr["tailpipe_nh3_ppm"], lw=0.7, label=r.name)
+        ax[3].plot(t, tr["adblue_g_s"], lw=0.7, label=r.name)
+        ax[4].plot(t, tr["mean_coverage"], lw=0.9, label=r.name)
+    ax[1].set_ylabel("tailpipe NOx [ppm]")
+    ax[1].set_yscale("symlog", linthresh=10)
+    ax[1].legend(fontsize=7, loc="upper right")
+    ax[2].set_ylabel("NH3 slip [ppm]")
+    ax[3].set_ylabel("AdBlue [g/s]")
+    ax[4].set_ylabel("mean NH3 coverage [-]")
+    ax[4].set_xlabel("time [s]")
+    ax[4].legend(fontsize=7)
+    fig.suptitle(f"closed loop on the hot {cycle.upper()}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", type=Path, default=None, help="also write the JSON result here")
+    ap.add_argument("--quick", action="store_true", help="WHTC only, shorter MPC horizons")
+    ap.add_argument("--cycles", nargs="+", default=None, help="cycles (default: whtc whsc; --quick: whtc)")
+    ap.add_argument("--workers", type=int, default=2, help="parallel episodes (processes)")
+    args = ap.parse_args(argv)
+    cycles = args.cycles or (["whtc"] if args.quick else ["whtc", "whsc"])
+    out = run_folder("control_benchmark")
+    t_start = time.perf_counter()
+    rl, rl_note = available_rl()
+    if rl_note:
+        print(f"note: {rl_note}; skipped")
+    print("identifying the grey-box storage model from open-loop excitation data ...", flush=True)
+    ident = identify()
+    print(f"  fitted in {ident['fit_seconds']:.0f} s; WHTC validation fit [%]: "
+          + ", ".join(f"{k} {v:.1f}" for k, v in ident["validation_fit_percent_whtc"].items()), flush=True)
+    names = ["mpc_oracle", "mpc_identified", "pi", "lookup_table", *rl]  # slowest first
+    jobs = [(n, c, ident if n == "mpc_identified" else None, args.quick) for n in names for c in cycles]
+    if args.workers > 1:
+        with ProcessPoolExecutor(max_workers=args.workers) as ex:
+            results = list(ex.map(_job, jobs))
+    else:
+        results = [_job(j) for j in jobs]
+    order = {n: i for i, n in enumerate([*CORE, *rl])}
+    results.sort(key=lambda r: (cycles.index(r.cycle) if r.cycle in cycles else 0, order.get(r.name, 99)))
+    table = comparison_table(results, extra=("solve_time_ms_median", "solve_time_ms_p95", "solver_failures"))
+    print(table)
+    doc: dict[str, Any] = {"cycles": {}, "identified_model": ident, "skipped": rl_note or None,
+                           "run_folder": str(out), "quick": bool(args.quick)}
+    for c in cycles:
+        ctrl = {}
+        for r in results:
+            if r.cycle != c:
+                continue
+            row = {k: v for k, v in r.row().items() if k in REPORT_KEYS or k == "wall_time_s"}
+            ctrl[r.name] = row
+        doc["cycles"][c] = {"controllers": ctrl}
+        if all(n in ctrl for n in ("lookup_table", "mpc_oracle", "mpc_identified")):
+            lut, orc, idm = (ctrl[n]["tailpipe_nox_g_per_kwh"] for n in ("lookup_table", "mpc_oracle", "mpc_identified"))
+            gap = lut - orc
+            doc["cycles"][c]["gap_closed_by_mpc_identified"] = (lut - idm) / gap if gap > 0 else float("nan")
+            print(f"{c}: mpc_identified closes {doc['cycles'][c]['gap_closed_by_mpc_identified']:.2f} of the "
+                  "look-up-table-to-oracle tailpipe NOx gap")
+        plot(results, c, out / f"closed_loop_{c}.png")
+    doc["wall_time_s"] = time.perf_counter() - t_start
+    (out / "table.txt").write_text(table + "\n", encoding="utf-8")
+    write_json(out / "control_benchmark.json", doc)
+    if args.json is not None:
+        write_json(args.json, doc)
+    print(f"wrote {out} in {doc['wall_time_s']:.0f} s")
+    return doc
+
+
+if __name__ == "__main__":
+    main()
