@@ -18,7 +18,7 @@ NH3 slip as a second output: every model here is fitted per output (M-III..M-V a
 single-output fit of the same five structures, done when the slip varies (SD > 0.1 ppm in the estimation part);
 otherwise it is recorded as not identifiable from that segment.
 
-    python -m experiments.paper4_multisegment [--json PATH] [--segments 6]
+    python -m experiments.paper4_multisegment [--json PATH] [--segments 4]
 """
 from __future__ import annotations
 
@@ -63,7 +63,7 @@ def verdict(diff: np.ndarray) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", help="write the results to this JSON file")
-    ap.add_argument("--segments", type=int, default=6, help="number of segments (default 6; 15 for the full run)")
+    ap.add_argument("--segments", type=int, default=4, help="number of segments (default 4, about 5 min; 15 for the full run)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     segs = segment_list(args.segments)
