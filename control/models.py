@@ -250,6 +250,9 @@ class IdentifiedModelAdapter:
     initial_state : ``f(observation) -> x0`` at episode start (default zeros).
     model_dt : sample time of the model [s]; a stage of the MPC is round(h / model_dt) model steps.
     terminal_cost : optional ``f(x) -> SX`` terminal cost of the MPC.
+    stage_model : optional second export of the same identified model discretised at the MPC's stage length
+        (continuous-time parameters, e.g. :meth:`control.identified.StorageGreyBox.from_params` with ``dt = h``):
+        one step per stage keeps the NLP small; the EKF still runs ``model`` at the data's sample time.
     """
 
     n_terminal_params = 0
@@ -261,7 +264,7 @@ class IdentifiedModelAdapter:
                  measured_output: int = 2, process_noise: float | np.ndarray = 1e-3,
                  measurement_noise: float = 1e-2, state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
                  initial_state: Callable[[np.ndarray], np.ndarray] | None = None, model_dt: float = 0.5,
-                 terminal_cost: Callable[[Any], Any] | None = None) -> None:
+                 terminal_cost: Callable[[Any], Any] | None = None, stage_model: Any = None) -> None:
         self.model = model
         self.input_mean = input_mean
         self.input_scale = input_scale
@@ -276,9 +279,11 @@ class IdentifiedModelAdapter:
         self.initial_state = initial_state
         self.model_dt = model_dt
         self.terminal_cost_fn = terminal_cost
+        self.stage_model = stage_model
         from control.estimation import ExtendedKalmanFilter
 
         self.step_ = model.to_casadi()
+        self.stage_step_ = None if stage_model is None else stage_model.to_casadi()
         self.nx = int(self.step_.size1_in(0))
         self._um, self._us = np.asarray(input_mean, float), np.asarray(input_scale, float)
         self._ym, self._ys = np.asarray(output_mean, float), np.asarray(output_scale, float)
@@ -296,6 +301,8 @@ class IdentifiedModelAdapter:
     def _simulate(self, x: Any, u: Any, d: Any, h: float) -> tuple[Any, Any]:
         """Model steps of model_dt over one stage of length h (input held): (x at the end, y of the last step)."""
         un = ca.vertcat(*self._u_norm(u, d))
+        if self.stage_step_ is not None:
+            return self.stage_step_(x, un)
         y = None
         for _ in range(max(round(h / self.model_dt), 1)):
             x, y = self.step_(x, un)

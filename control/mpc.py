@@ -20,8 +20,10 @@ state (the oracle) and any identified model's CasADi export with an EKF for its 
 ``nlpsol`` (IPOPT by default), warm-started from the previous solution shifted by one interval.
 
 A failed solve (solver status not successful, an exception, a non-finite result) never raises mid-episode: the
-controller applies the fallback dose (the look-up table by default), counts the failure and reports it in
-:meth:`NonlinearMPC.stats`, with the solve times.
+controller applies the last good plan while it lasts, then the fallback dose (the look-up table by default),
+counts the failure (``solver_failures``) and reports it in :meth:`NonlinearMPC.stats`, with the solve times. An
+iterate at the iteration limit that satisfies every constraint (model equations included, to 1e-6) is a valid but
+suboptimal plan: it is applied and counted as ``solver_suboptimal``, not as a failure.
 """
 from __future__ import annotations
 
@@ -135,11 +137,14 @@ class NonlinearMPC:
         t = np.asarray(self._solve_ms) if self._solve_ms else np.array([math.nan])
         it = np.asarray(self._iters) if self._iters else np.array([math.nan])
         return {"solver_failures": float(self._failures), "solves": float(len(self._solve_ms)),
+                "solver_suboptimal": float(self._suboptimal),
                 "solve_time_ms_median": float(np.median(t)), "solve_time_ms_p95": float(np.percentile(t, 95)),
                 "solve_time_ms_max": float(np.max(t)), "solver_iterations_mean": float(np.mean(it))}
 
     def _reset_episode(self) -> None:
         self._failures = 0
+        self._suboptimal = 0
+        self._plan_age = 0
         self._solve_ms: list[float] = []
         self._iters: list[int] = []
         self._w0: np.ndarray | None = None
@@ -193,9 +198,9 @@ class NonlinearMPC:
         self._lbg, self._ubg = np.array(lbg), np.array(ubg)
         wv = ca.vertcat(ca.vec(X), U, S)
         pv = ca.vertcat(x0, ca.vec(D), ca.vec(Pst), Pt, u_prev)
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": 50, "ipopt.tol": 1e-6,
-                "ipopt.acceptable_tol": 1e-4, "ipopt.warm_start_init_point": "yes", "ipopt.sb": "yes",
-                "ipopt.mu_init": 1e-3} if self.solver == "ipopt" else {"print_time": False}
+        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": 60, "ipopt.tol": 1e-6,
+                "ipopt.acceptable_tol": 1e-3, "ipopt.acceptable_iter": 3, "ipopt.warm_start_init_point": "yes",
+                "ipopt.sb": "yes", "ipopt.mu_init": 1e-3} if self.solver == "ipopt" else {"print_time": False}
         opts.update(self.solver_options or {})
         self._solver = ca.nlpsol("mpc", self.solver, {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}, opts)
         self._H, self._nx = H, nx
@@ -232,7 +237,11 @@ class NonlinearMPC:
         self._solve_ms.append((time.perf_counter() - t0) * 1e3)
         if rate is None:
             self._failures += 1
-            rate = self._fallback_rate(obs)
+            self._plan_age += 1
+            plan = self.last_plan_
+            i = self._plan_age // self.stage_steps
+            # the last good plan while it lasts, then the fallback policy (the look-up table by default)
+            rate = float(plan["u"][i]) if plan is not None and i < len(plan["u"]) else self._fallback_rate(obs)
             self._w0 = None
             self._lam_g0 = None
             lim = self.max_rate_change_g_s2 * self.dt
@@ -263,12 +272,21 @@ class NonlinearMPC:
         status = str(st.get("return_status", ""))
         self.status_counts_[status] = self.status_counts_.get(status, 0) + 1
         wopt = np.asarray(sol["x"]).ravel()
-        if not st.get("success", False) or not np.all(np.isfinite(wopt)):
+        if not np.all(np.isfinite(wopt)):
             return None
+        if not st.get("success", False):
+            # an iterate that satisfies the model and the constraints is a valid (suboptimal) plan: use it, count it
+            g = np.asarray(sol["g"]).ravel()
+            viol = max(float(np.max(self._lbg - g)), float(np.max(g - self._ubg)), 0.0)
+            if status not in ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
+                              "Search_Direction_Becomes_Too_Small") or viol > 1e-6:
+                return None
+            self._suboptimal += 1
         X = wopt[:nx * H].reshape(H, nx)
         U = wopt[nx * H:nx * H + H]
         S = wopt[nx * H + H:]
         self.last_plan_ = {"x": X, "u": U, "slack": S}
+        self._plan_age = 0
         # warm start: shift by one stage only every stage_steps intervals would be exact; a plain reuse is close
         self._w0 = wopt
         self._lam_g0 = np.asarray(sol["lam_g"]).ravel()

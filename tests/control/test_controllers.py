@@ -17,13 +17,13 @@ def _identified_mpc(**kw):
                                      process_noise=np.array([1e-6, 1e-6, 0.5]),
                                      state_bounds=(np.array([0, 0, 250.0]), np.array([1, 1, 900.0])),
                                      initial_state=lambda obs: np.array([0.0, 0.0, obs[1]]))
-    return NonlinearMPC(adapter, horizon=5, stage_steps=2, **kw)
+    return NonlinearMPC(adapter, horizon=4, stage_steps=2, **kw)
 
 
 CONTROLLERS = {
     "lookup_table": LookupTableDosing,
     "pi": FeedforwardPI,
-    "mpc_oracle": lambda: NonlinearMPC(FirstPrinciplesModel(), horizon=5, stage_steps=2, preview=True),
+    "mpc_oracle": lambda: NonlinearMPC(FirstPrinciplesModel(), horizon=3, stage_steps=2, preview=True),
     "mpc_identified": _identified_mpc,
 }
 
@@ -32,18 +32,17 @@ CONTROLLERS = {
 def test_controller_satisfies_protocol(name):
     policy = CONTROLLERS[name]()
     assert isinstance(policy, PolicyPredictor)
-    res = evaluate(policy, cycles=("whsc",), max_steps=20, name=name)[0]
+    res = evaluate(policy, cycles=("whsc",), max_steps=10, name=name)[0]
     assert res.timing["policy_time_ms_median"] > 0
     if name.startswith("mpc"):
-        assert res.stats["solves"] == 20 and res.stats["solver_failures"] == 0
+        assert res.stats["solves"] == 10 and res.stats["solver_failures"] == 0
     a, state = policy.predict(np.array([500.0, 550.0, 6.0, 30.0, 0.0], dtype=np.float32))
     assert a.shape == (1,) and -1.0 <= float(a[0]) <= 1.0 and state is None
 
 
 def test_failing_solve_returns_fallback_and_is_counted():
     lut = LookupTableDosing()
-    mpc = NonlinearMPC(FirstPrinciplesModel(), horizon=5, stage_steps=2, fallback=lut,
-                       max_rate_change_g_s2=100.0, solver_options={"ipopt.max_iter": 1})
+    mpc = _identified_mpc(fallback=lut, max_rate_change_g_s2=100.0, solver_options={"ipopt.max_iter": 1})
     res = evaluate(mpc, cycles=("whsc",), max_steps=10, record_trajectory=True)[0]
     assert res.stats["solver_failures"] == 10
     # every dose was the look-up table's (the rate limit is wide open here)
