@@ -17,8 +17,9 @@ block                  g(x; p)                                                  
 :class:`Identity`      x                                                               none
 :class:`Arrhenius`     (exp(-a / x) - m) / s, x a temperature in K; m, s fixed at       a (K)
                        ``initial_params`` from the data (Paper IV's normalised v3)
-:class:`PiecewiseLinear`  continuous, linear between knots, linear extrapolation;      values at knots (+ knots)
-                       knots at data quantiles or given
+:class:`PiecewiseLinear`  continuous, linear between knots, linear or constant         values at knots (+ knots),
+                       extrapolation; knots at data quantiles or given; optionally     or first value and
+                       non-decreasing (``monotone``)                                   increments >= 0
 :class:`Saturation`    min(max(x, lower), upper)                                       lower, upper
 :class:`DeadZone`      x - upper above upper, x - lower below lower, 0 between         lower, upper
 :class:`Polynomial`    sum_k c_k x^k, k = 0..degree                                    c_0..c_degree
@@ -69,6 +70,15 @@ class StaticNonlinearity:
     def n_free(self) -> int:
         """Number of estimated parameters."""
         return self.n_params() if self.estimate else 0
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of the parameters (default: unbounded)."""
+        return np.full(self.n_params(), -np.inf), np.full(self.n_params(), np.inf)
+
+    def roughness_matrix(self) -> np.ndarray | None:
+        """A matrix ``R`` (n_rough, n_params) whose ``R @ p`` measures the block's departure from a straight line
+        (penalised by the estimator's ``smoothness``), or None when the block has no such measure."""
+        return None
 
     def to_dict(self) -> dict[str, Any]:
         return {"type": type(self).__name__, **{k: _plain(v) for k, v in vars(self).items()}}
@@ -194,7 +204,9 @@ class PiecewiseLinear(StaticNonlinearity):
     its end values, so inputs outside the estimation range are not extrapolated along a slope no data supported).
 
     Parametrised by its values at the ``n_segments + 1`` knots (starting as the identity), plus the knots themselves
-    when ``estimate_knots``. Knots default to equally spaced quantiles of the estimation data (so each segment holds
+    when ``estimate_knots``; with ``monotone`` by the first value and the ``n_segments`` increments between
+    consecutive knot values, bounded below by 0 (a non-decreasing function, e.g. a reaction rate that rises with
+    temperature). Knots default to equally spaced quantiles of the estimation data (so each segment holds
     about the same number of samples; the outer segments extend to infinity), or are given.
 
     Parameters
@@ -209,15 +221,30 @@ class PiecewiseLinear(StaticNonlinearity):
         Estimate the knots too (the fit keeps them increasing by rejecting steps that reorder them).
     extrapolation : {"linear", "constant"}
         Behaviour beyond the outer knots.
+    monotone : bool
+        Constrain the function to be non-decreasing (increments parametrisation with bounds; fixed knots only).
+
+    ``roughness_matrix`` gives the changes of slope at the inner knots (zero for a straight line), which the
+    estimator's ``smoothness`` penalises.
     """
 
     def __init__(self, n_segments: int = 5, knots: Sequence[float] | None = None, estimate: bool = True,
-                 estimate_knots: bool = False, extrapolation: str = "linear") -> None:
+                 estimate_knots: bool = False, extrapolation: str = "linear", monotone: bool = False) -> None:
         self.n_segments = n_segments
         self.knots = knots
         self.estimate = estimate
         self.estimate_knots = estimate_knots
         self.extrapolation = extrapolation
+        self.monotone = monotone
+
+    def _monotone(self) -> bool:
+        return bool(getattr(self, "monotone", False))
+
+    def _cum(self) -> np.ndarray:
+        """T with values = T @ (v_0, d_1, ..., d_K) for the monotone parametrisation."""
+        k = self._k()
+        T = np.tril(np.ones((k, k)))
+        return T
 
     def _k(self) -> int:
         return int(self.n_segments) + 1
@@ -233,6 +260,8 @@ class PiecewiseLinear(StaticNonlinearity):
             raise ValueError(f"n_segments must be a positive integer, got {self.n_segments}")
         if self.extrapolation not in ("linear", "constant"):
             raise ValueError(f"extrapolation must be 'linear' or 'constant', got {self.extrapolation!r}")
+        if self._monotone() and self.estimate_knots:
+            raise ValueError("PiecewiseLinear: monotone is implemented for fixed knots only (estimate_knots=False)")
         if self.knots is None:
             knots = np.quantile(_x(x), np.linspace(0.0, 1.0, self._k()))
             if np.any(np.diff(knots) <= 0):
@@ -245,13 +274,31 @@ class PiecewiseLinear(StaticNonlinearity):
         if knots.size != self._k() or np.any(np.diff(knots) <= 0):
             raise ValueError(f"PiecewiseLinear needs {self._k()} strictly increasing knots, got {knots.tolist()}")
         self.knots = knots
+        if self._monotone():
+            return np.concatenate([knots[:1], np.diff(knots)])
         return np.concatenate([knots, knots]) if self.estimate_knots else knots.copy()
 
     def _split(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         k = self._k()
         if self.estimate_knots:
             return p[:k], p[k:]
-        return np.asarray(self.knots, dtype=float), p
+        p = np.asarray(p, dtype=float)
+        return np.asarray(self.knots, dtype=float), (np.cumsum(p) if self._monotone() else p)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = super().bounds()
+        if self._monotone():
+            lo[1:] = 0.0
+        return lo, hi
+
+    def roughness_matrix(self) -> np.ndarray | None:
+        if self.estimate_knots or self.knots is None or self.n_segments < 2:
+            return None
+        knots = np.asarray(self.knots, dtype=float)
+        k = knots.size
+        slopes = np.diff(np.eye(k), axis=0) / np.diff(knots)[:, None]   # (K-1, K): slopes from values
+        R = np.diff(slopes, axis=0)                                      # (K-2, K): slope changes
+        return R @ self._cum() if self._monotone() else R
 
     def _segment(self, x: np.ndarray, knots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Segment index j (0..K-2) of each sample (outer segments extended) and position t in it (may be < 0
@@ -284,6 +331,8 @@ class PiecewiseLinear(StaticNonlinearity):
         dv = np.zeros((x.size, k))
         dv[rows, j] = 1.0 - t
         dv[rows, j + 1] += t
+        if self._monotone():
+            return dv @ self._cum()
         if not self.estimate_knots:
             return dv
         # v = vals_j + (x - k_j) / (k_{j+1} - k_j) * dvals

@@ -18,6 +18,20 @@ linear model: an :class:`~ident.linear.OutputError` fit from the inputs through 
 parameters removes the gain and offset ambiguity between the static blocks and the linear block (a piecewise-linear
 input block scaled by c and B_i by 1/c give the same output).
 
+Options against overfitting flexible input blocks (Paper IV's M-V):
+
+* ``smoothness``: a penalty ``smoothness * N * sum_blocks ||R p||^2`` on the blocks' ``roughness_matrix`` (for a
+  piecewise-linear block the changes of slope at its inner knots), i.e. ``smoothness`` per unit of mean squared
+  error; it pulls every block toward a straight line, which the linear block can absorb. A sequence of values is a
+  grid: each is fitted on the first ``1 - holdout`` of the estimation data and scored by the simulated FIT on the
+  rest (simulated from the start, so the hold-out continues the fitted record), the best is refitted on all of it
+  (``smoothness_``, ``holdout_scores_``). Nothing outside the data passed to ``fit`` is used.
+* ``init_model`` may be a fitted :class:`~ident.linear.OutputError` or :class:`HammersteinWiener` on the same inputs,
+  or an *unfitted* :class:`HammersteinWiener` template, which is then fitted first on the data passed to ``fit``
+  (also on the inner split of the hold-out selection): e.g. M-V started from M-IV, a Wiener model on the same
+  inputs, so the start is M-IV itself (identity-like piecewise-linear blocks) and the fit can only improve on it.
+* block bounds (``StaticNonlinearity.bounds``, e.g. ``PiecewiseLinear(monotone=True)``) are honoured.
+
 Special cases: :func:`wiener` (identity inputs) and :func:`hammerstein` (identity output).
 """
 from __future__ import annotations
@@ -69,7 +83,13 @@ class HammersteinWiener:
         ``ftol``, ``xtol`` and ``gtol`` of ``least_squares``.
     init_model : OutputError, optional
         A fitted output-error model (same inputs, orders) to start the linear block from, instead of fitting one
-        on the inputs passed through the initial static blocks.
+        on the inputs passed through the initial static blocks. Also a fitted HammersteinWiener (its linear block is
+        used), or an unfitted HammersteinWiener template, fitted first on the data given to ``fit``.
+    smoothness : float or sequence of float
+        Weight of the roughness penalty on the static blocks (see module docstring); a sequence is a grid chosen by
+        the hold-out inside the estimation data.
+    holdout : float
+        Fraction of the estimation data (its end) held out to choose ``smoothness`` from a grid.
 
     Attributes
     ----------
@@ -86,12 +106,18 @@ class HammersteinWiener:
         State-space realisation of the linear block (input v, output w); its state is the model state.
     cost_, initial_cost_ : float
         Mean squared simulation error on the estimation data after the fit and at the start.
+    smoothness_ : float
+        The smoothness weight used (chosen from the grid when ``smoothness`` is a sequence).
+    holdout_scores_ : dict
+        Hold-out FIT (%) per grid value (empty when ``smoothness`` is a single value).
     """
 
     def __init__(self, input_blocks: Sequence[StaticNonlinearity] | None = None,
                  output_block: StaticNonlinearity | None = None, nb: int | Sequence[int] = 2,
                  nf: int | Sequence[int] = 2, nk: int | Sequence[int] = 1, regularization: float = 1e-3,
-                 max_nfev: int = 200, tol: float = 1e-8, init_model: OutputError | None = None) -> None:
+                 max_nfev: int = 200, tol: float = 1e-8,
+                 init_model: OutputError | HammersteinWiener | None = None,
+                 smoothness: float | Sequence[float] = 0.0, holdout: float = 0.25) -> None:
         self.input_blocks = input_blocks
         self.output_block = output_block
         self.nb = nb
@@ -101,12 +127,14 @@ class HammersteinWiener:
         self.max_nfev = max_nfev
         self.tol = tol
         self.init_model = init_model
+        self.smoothness = smoothness
+        self.holdout = holdout
 
     # ------------------------------------------------------------------------------------------- helpers
     def get_params(self) -> dict[str, Any]:
         """Constructor arguments as stored (scikit-learn convention)."""
         return {k: getattr(self, k) for k in ("input_blocks", "output_block", "nb", "nf", "nk", "regularization",
-                                              "max_nfev", "tol", "init_model")}
+                                              "max_nfev", "tol", "init_model", "smoothness", "holdout")}
 
     def __repr__(self) -> str:
         return f"HammersteinWiener(input_blocks={self.input_blocks!r}, output_block={self.output_block!r}, " \
@@ -172,6 +200,36 @@ class HammersteinWiener:
         Raises ``ValueError`` for NaN/inf, mismatched lengths, constant inputs, more than one output, a wrong
         number of input blocks or too few samples.
         """
+        grid = np.atleast_1d(np.asarray(self.smoothness, dtype=float))
+        if grid.ndim != 1 or grid.size == 0 or np.any(~np.isfinite(grid)) or np.any(grid < 0):
+            raise ValueError(f"smoothness must be a non-negative number or a sequence of them, got "
+                             f"{self.smoothness!r}")
+        scores: dict[float, float] = {}
+        if np.ndim(self.smoothness) > 0 and grid.size > 1:
+            if not 0.0 < float(self.holdout) < 1.0:
+                raise ValueError(f"holdout must be in (0, 1), got {self.holdout!r}")
+            u_all, y_all = as_2d("u", u), as_2d("y", y)
+            n = check_same_length(u=u_all, y=y_all)
+            n_in = round(n * (1.0 - float(self.holdout)))
+            for lam in grid:
+                inner = HammersteinWiener(**{**self.get_params(), "smoothness": float(lam)})
+                try:
+                    inner._fit_once(u_all[:n_in], y_all[:n_in], float(lam))
+                    y_hat = inner.predict(u_all)[n_in:, 0]
+                    y_ho = y_all[n_in:, 0]
+                    score = 100.0 * (1.0 - np.linalg.norm(y_ho - y_hat) / np.linalg.norm(y_ho - y_ho.mean()))
+                except (ValueError, np.linalg.LinAlgError):
+                    score = -np.inf
+                scores[float(lam)] = float(score) if np.isfinite(score) else -np.inf
+            best = max(scores, key=lambda k: (scores[k], k))  # ties: the smoother
+        else:
+            best = float(grid[0])
+        self._fit_once(u, y, best)
+        self.smoothness_ = best
+        self.holdout_scores_ = scores
+        return self
+
+    def _fit_once(self, u: Any, y: Any, smoothness: float) -> HammersteinWiener:
         u_arr, yv, th0 = self._prepare(u, y)
         nu = u_arr.shape[1]
         # ridge rows on the free static parameters (input blocks first, output block last)
@@ -181,22 +239,44 @@ class HammersteinWiener:
         ref = th0[idx_arr]
         wts = np.sqrt(max(float(self.regularization), 0.0)) / np.maximum(np.abs(ref), 1.0)
         use_reg = self.regularization > 0 and idx_arr.size > 0
+        # roughness rows: sqrt(smoothness * N) * R_i p_i for every free input block that has a roughness measure
+        rough_rows: list[np.ndarray] = []
+        lo, hi = np.full(th0.size, -np.inf), np.full(th0.size, np.inf)
+        j = 0
+        for blk in self._blocks:
+            m = blk.n_free()
+            if m:
+                lo[j:j + m], hi[j:j + m] = blk.bounds()
+                R = blk.roughness_matrix() if smoothness > 0 else None
+                if R is not None and R.size:
+                    rows = np.zeros((R.shape[0], th0.size))
+                    rows[:, j:j + m] = np.sqrt(smoothness * yv.size) * R
+                    rough_rows.append(rows)
+            j += m
+        if self._out.n_free():
+            lo[-self._out.n_free():], hi[-self._out.n_free():] = self._out.bounds()
+        Rr = np.vstack(rough_rows) if rough_rows else np.zeros((0, th0.size))
+        th0 = np.clip(th0, lo, hi)
 
         def resid(th: np.ndarray) -> np.ndarray:
             e = yv - self._simulate(th, u_arr, False)[0]
-            return np.concatenate([e, wts * (th[idx_arr] - ref)]) if use_reg else e
+            parts = [e, Rr @ th]
+            if use_reg:
+                parts.append(wts * (th[idx_arr] - ref))
+            return np.concatenate(parts)
 
         def jac(th: np.ndarray) -> np.ndarray:
-            J = -self._simulate(th, u_arr, True)[1]
+            J = [-self._simulate(th, u_arr, True)[1], Rr]
             if use_reg:
                 R = np.zeros((idx_arr.size, th.size))
                 R[np.arange(idx_arr.size), idx_arr] = wts
-                J = np.vstack([J, R])
-            return J
+                J.append(R)
+            return np.vstack(J)
 
         self.initial_cost_ = float(np.mean((yv - self._simulate(th0, u_arr, False)[0]) ** 2))
+        bounded = bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
         res = least_squares(resid, th0, jac=jac, method="trf", x_scale="jac", ftol=self.tol, xtol=self.tol,
-                            gtol=self.tol, max_nfev=self.max_nfev)
+                            gtol=self.tol, max_nfev=self.max_nfev, bounds=(lo, hi) if bounded else (-np.inf, np.inf))
         th = res.x
         cost = float(np.mean((yv - self._simulate(th, u_arr, False)[0]) ** 2))
         if not np.isfinite(cost) or cost > self.initial_cost_:
@@ -235,19 +315,34 @@ class HammersteinWiener:
         lin = self.init_model
         if lin is None:
             lin = OutputError(nb=tuple(nb), nf=tuple(nf), nk=tuple(nk), max_nfev=self.max_nfev).fit(v0, yv)
+        elif isinstance(lin, HammersteinWiener) and not hasattr(lin, "b_"):
+            lin = HammersteinWiener(**lin.get_params()).fit(u_arr, yv)  # a template: fit it on these data first
         check_is_fitted(lin, "b_")
-        if lin.b_.shape[:2] != (1, nu):
-            raise ValueError("init_model must be a single-output OutputError fitted on the same inputs")
-        w0 = lin.predict(v0)[:, 0]
+        if isinstance(lin, HammersteinWiener):
+            if lin.b_.shape[0] != nu:
+                raise ValueError("init_model must be a HammersteinWiener fitted on the same inputs")
+            lin_b, lin_f = lin.b_, lin.f_
+            w0 = simulate_ss(lin.A_, lin.B_, lin.C_, lin.D_, v0)[0][:, 0]
+        else:
+            if lin.b_.shape[:2] != (1, nu):
+                raise ValueError("init_model must be a single-output OutputError fitted on the same inputs")
+            lin_b, lin_f = lin.b_[0], lin.f_[0]
+            w0 = lin.predict(v0)[:, 0]
         self._p0_out = self._out.initial_params(w0)
         theta0: list[float] = []
         for blk, p0 in zip(self._blocks, self._p0_in):
             if blk.n_free():
                 theta0 += list(p0)
         for i in range(nu):
-            theta0 += list(lin.b_[0, i, nk[i]:nk[i] + nb[i]])
+            b_i = np.zeros(nk[i] + nb[i])
+            m = min(b_i.size, lin_b.shape[1])
+            b_i[:m] = lin_b[i, :m]
+            theta0 += list(b_i[nk[i]:nk[i] + nb[i]])
             if nf[i]:
-                f_i = stabilize_poly(lin.f_[0, i, :nf[i] + 1], 0.999)
+                f_i = np.zeros(nf[i] + 1)
+                m = min(f_i.size, lin_f.shape[1])
+                f_i[:m] = lin_f[i, :m]
+                f_i = stabilize_poly(f_i, 0.999)
                 theta0 += list(np.arctanh(np.clip(reflection_from_poly(f_i), -_KAPPA_MAX, _KAPPA_MAX)))
         if self._out.n_free():
             theta0 += list(self._p0_out)
@@ -313,7 +408,8 @@ class HammersteinWiener:
 
     def initial_state(self, u: Any, y: Any, n_iter: int = 8) -> np.ndarray:
         """The linear block's x(0) that best explains the measured ``y`` given ``u`` (Gauss-Newton through the
-        output block, from x(0) = 0; samples where the output block saturates carry no information)."""
+        output block, from x(0) = 0, with step halving so the squared error never rises; samples where the output block
+        saturates carry no information)."""
         v = self.transform_inputs(u)
         y = as_2d("y", y, n_columns=1)[:, 0]
         n0 = check_same_length(u=v, y=y)
@@ -325,13 +421,26 @@ class HammersteinWiener:
             obs[t] = m
             m = m @ A
         x0 = np.zeros(A.shape[0])
+
+        def sse(x: np.ndarray) -> float:
+            return float(np.sum((y - self.output_block_.value(w_zero + obs @ x, self.output_params_)) ** 2))
+
+        cost = sse(x0)
         for _ in range(n_iter):
             w = w_zero + obs @ x0
             r = y - self.output_block_.value(w, self.output_params_)
             J = self.output_block_.dx(w, self.output_params_)[:, None] * obs
             dx, *_ = np.linalg.lstsq(J, r, rcond=None)
-            x0 = x0 + dx
-            if np.linalg.norm(dx) <= 1e-10 * (1.0 + np.linalg.norm(x0)):
+            # step halving: through a saturating output block the Gauss-Newton step may overshoot (samples that
+            # leave the saturation change the residual), so accept only steps that lower the squared error
+            step, new_cost = 1.0, sse(x0 + dx)
+            while not new_cost <= cost and step > 1e-6:
+                step *= 0.5
+                new_cost = sse(x0 + step * dx)
+            if not new_cost <= cost:
+                break
+            x0, cost = x0 + step * dx, new_cost
+            if np.linalg.norm(step * dx) <= 1e-10 * (1.0 + np.linalg.norm(x0)):
                 break
         return x0
 

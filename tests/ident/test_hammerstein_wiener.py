@@ -27,6 +27,7 @@ BLOCKS = [
     (PiecewiseLinear(4, estimate_knots=True), np.linspace(-3, 3, 41)),
     (PiecewiseLinear(3, knots=[-1.0, 0.0, 0.5, 1.5], estimate_knots=True, extrapolation="constant"),
      np.linspace(-3, 3, 41)),
+    (PiecewiseLinear(5, extrapolation="constant", monotone=True), np.linspace(-3, 3, 41)),
     (Saturation(-0.5, 1.2, estimate=True), np.linspace(-2, 2, 41)),
     (DeadZone(-0.3, 0.4), np.linspace(-2, 2, 41)),
     (Polynomial(3, coefficients=[0.1, 1.0, -0.3, 0.2]), np.linspace(-2, 2, 41)),
@@ -160,3 +161,57 @@ def test_bad_inputs() -> None:
     fitted_m = HammersteinWiener(max_nfev=5).fit(u, y)
     with pytest.raises(ValueError, match="columns"):
         fitted_m.predict(u[:, :1])
+
+
+def test_pwl_monotone_and_roughness() -> None:
+    x = np.linspace(-2, 2, 101)
+    blk = PiecewiseLinear(4, monotone=True)
+    p = blk.initial_params(x)
+    np.testing.assert_allclose(blk.value(x, p), x, atol=1e-12)  # starts as the identity
+    lo, hi = blk.bounds()
+    assert lo[0] == -np.inf and np.all(lo[1:] == 0) and np.all(hi == np.inf)
+    R = blk.roughness_matrix()
+    assert R.shape == (3, 5)
+    np.testing.assert_allclose(R @ p, 0.0, atol=1e-12)  # a straight line is not rough
+    kinked = p.copy()
+    kinked[3] += 1.0  # a step up of the slope at one knot
+    assert np.linalg.norm(R @ kinked) > 0.5
+    free = PiecewiseLinear(4)
+    pf = free.initial_params(x)
+    np.testing.assert_allclose(free.roughness_matrix() @ pf, 0.0, atol=1e-12)
+    assert PiecewiseLinear(4, estimate_knots=True).roughness_matrix() is None
+    with pytest.raises(ValueError, match="monotone"):
+        PiecewiseLinear(4, monotone=True, estimate_knots=True).initial_params(x)
+
+
+def test_monotone_fit_stays_non_decreasing() -> None:
+    u = np.column_stack([_inputs(600, 21), _inputs(600, 22)])
+    g1 = np.where(u[:, 0] > 0, u[:, 0], -0.5 * u[:, 0])  # V-shaped: a free fit would make it decrease
+    y = lfilter([0, 0.3], [1, -0.8], g1) + lfilter([0, 0.2], [1, -0.5], u[:, 1])
+    m = hammerstein([PiecewiseLinear(6, monotone=True), Identity()], nb=1, nf=1, max_nfev=60).fit(u, y)
+    vals = m.input_blocks_[0]._split(m.input_params_[0])[1]
+    assert np.all(np.diff(vals) >= -1e-9)
+    free = hammerstein([PiecewiseLinear(6), Identity()], nb=1, nf=1, max_nfev=60).fit(u, y)
+    assert free.cost_ < m.cost_  # the constraint binds on this system
+
+
+def test_smoothness_grid_holdout_and_init_from_template() -> None:
+    u = np.column_stack([_inputs(800, 23), _inputs(800, 24)])
+    w = lfilter([0, 0.5], [1, -0.7], u[:, 0]) + lfilter([0, 0.3], [1, -0.5], u[:, 1])
+    y = np.clip(w + 0.05 * np.random.default_rng(3).standard_normal(800), -0.5, np.inf)
+    template = wiener(Saturation(-0.5), nb=1, nf=1)
+    m = HammersteinWiener([PiecewiseLinear(8), PiecewiseLinear(8)], Saturation(-0.5), nb=1, nf=1,
+                          init_model=template, smoothness=(0.0, 1.0, 100.0), max_nfev=40).fit(u, y)
+    assert set(m.holdout_scores_) == {0.0, 1.0, 100.0} and m.smoothness_ in m.holdout_scores_
+    assert m.holdout_scores_[m.smoothness_] == max(m.holdout_scores_.values())
+    assert not hasattr(template, "b_")  # the template itself is left unfitted
+    wien = wiener(Saturation(-0.5), nb=1, nf=1).fit(u, y)
+    assert m.initial_cost_ == pytest.approx(wien.cost_, rel=1e-6)  # started from the fitted template
+    assert m.cost_ <= m.initial_cost_
+    # a heavy roughness penalty keeps the blocks straight lines
+    stiff = HammersteinWiener([PiecewiseLinear(8), PiecewiseLinear(8)], Saturation(-0.5), nb=1, nf=1,
+                              init_model=wien, smoothness=1e4, max_nfev=40).fit(u, y)
+    for blk, p in zip(stiff.input_blocks_, stiff.input_params_):
+        assert np.linalg.norm(blk.roughness_matrix() @ p) < 1e-2
+    with pytest.raises(ValueError, match="smoothness"):
+        HammersteinWiener(smoothness=-1.0).fit(u, y)
