@@ -7,9 +7,11 @@ from ident.rpem.regressors import (
     parse_terms,
     polynomial_terms,
 )
+from ident.rpem.parametric import ParametricRPEM
 from ident.rpem.selection import backward_elimination, forward_selection
 
 __all__ = [
+    "ParametricRPEM",
     "RecursivePEM",
     "PAPER2_TERMS",
     "SCR_PAPER3_TERMS",
