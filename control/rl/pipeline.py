@@ -10,11 +10,23 @@ is stable-baselines3's ``VecNormalize`` (its statistics are shipped with each po
    |---|---|---|
    | ``stoichiometric_adblue_g_s`` | g/s | AdBlue rate for ANR = 1 at the measured upstream NOx and flow (NOx ppm * 1e-6 * flow / NH3 per g AdBlue): the feed-forward term, a product a small network would otherwise have to learn |
    | ``nh3_surplus_ema_g_s`` | g/s | exponential moving average (``surplus_time_constant_s``, 60 s) of the previous dose minus the stoichiometric dose: a crude proxy of the NH3 put into storage over the last minute |
+   | ``temperature_trend_k`` | K | inlet temperature minus its moving average (``temperature_time_constant_s``, 60 s): a rising temperature releases stored NH3 |
    | ``tailpipe_sensor_ema_ppm`` | ppm | moving average (``sensor_time_constant_s``, 10 s) of the tailpipe NOx sensor |
+
+   With ``use_tailpipe_sensor=False`` the tailpipe sensor and its average are left out: the policy is then a
+   learned feed-forward with memory (inlet conditions, its own previous doses), immune to the sensor's NH3
+   cross-sensitivity. The shipped policies use this (see control/policies/README.md): with the sensor, PPO learned
+   to answer a high reading with more AdBlue, which on the WHTC's hot motorway part (stored NH3 desorbing) is a
+   runaway: 182 ppm mean slip.
 
 2. **History**: the last ``n_stack`` feature vectors, oldest first, flattened (``n_stack * n_features`` values).
    At the start of an episode the history is filled with copies of the first feature vector (not zeros: a zero
    temperature is not a neutral value), and the moving averages start at their first input.
+
+Actions: with ``action="rate"`` (default) the policy outputs the environment's action (normalised AdBlue rate);
+with ``action="anr"`` it outputs an NH3-to-NOx ratio, ANR = (a + 1) / 2 * ``max_anr`` (0 to 2), dosed as
+ANR times the stoichiometric rate of the current observation (:meth:`ObservationPipeline.to_env_action`), the
+parameterisation of industrial dosing maps: the policy learns a correction map, not the product NOx x flow.
 
 3. **Normalisation** (outside this module): ``(x - mean) / sqrt(var + eps)`` clipped to ``+/- clip_obs``.
 
@@ -38,8 +50,11 @@ __all__ = ["FEATURES", "ObservationPipeline", "PipelineConfig", "PipelineVecEnv"
 
 #: the observation the pipeline expects (names of ``UreaSCREnv.observation_names`` with the default options)
 EXPECTED_OBSERVATION = tuple(OBS_BASE)
-#: per-step features, in order
-FEATURES = EXPECTED_OBSERVATION + ("stoichiometric_adblue_g_s", "nh3_surplus_ema_g_s", "tailpipe_sensor_ema_ppm")
+#: per-step features, in order (``tailpipe_nox_sensor_ppm`` and ``tailpipe_sensor_ema_ppm`` only with
+#: ``PipelineConfig.use_tailpipe_sensor``)
+FEATURES = EXPECTED_OBSERVATION + ("stoichiometric_adblue_g_s", "nh3_surplus_ema_g_s", "temperature_trend_k",
+                                   "tailpipe_sensor_ema_ppm")
+_SENSOR_FEATURES = ("tailpipe_nox_sensor_ppm", "tailpipe_sensor_ema_ppm")
 
 
 @dataclass(frozen=True)
@@ -51,11 +66,18 @@ class PipelineConfig:
     max_rate_g_s: float = 3.0  # g/s, AdBlue rate of action +1
     surplus_time_constant_s: float = 60.0  # s [chosen: storage time scale of about a minute]
     sensor_time_constant_s: float = 10.0  # s [chosen: averages out sensor noise and short spikes]
+    temperature_time_constant_s: float = 60.0  # s [chosen: a rise against the last minute releases stored NH3]
+    use_tailpipe_sensor: bool = False
+    action: str = "rate"  # "rate": the policy outputs the env action; "anr": it outputs an NH3-to-NOx ratio
+    max_anr: float = 2.0  # with action "anr": policy action -1..1 -> ANR 0..max_anr
 
     def __post_init__(self) -> None:
         if isinstance(self.n_stack, bool) or not isinstance(self.n_stack, int) or self.n_stack < 1:
             raise ValueError(f"n_stack must be a positive integer, got {self.n_stack!r}")
-        for name in ("dt", "max_rate_g_s", "surplus_time_constant_s", "sensor_time_constant_s"):
+        if self.action not in ("rate", "anr"):
+            raise ValueError(f"action must be 'rate' or 'anr', got {self.action!r}")
+        for name in ("dt", "max_rate_g_s", "surplus_time_constant_s", "sensor_time_constant_s",
+                     "temperature_time_constant_s", "max_anr"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {v!r}")
@@ -68,18 +90,25 @@ class PipelineConfig:
         return cls(**d)
 
     @property
+    def features(self) -> tuple[str, ...]:
+        """The per-step features of this configuration, in order."""
+        if self.use_tailpipe_sensor:
+            return FEATURES
+        return tuple(f for f in FEATURES if f not in _SENSOR_FEATURES)
+
+    @property
     def n_features(self) -> int:
-        return len(FEATURES)
+        return len(self.features)
 
     @property
     def output_size(self) -> int:
-        return self.n_stack * len(FEATURES)
+        return self.n_stack * self.n_features
 
     @property
     def output_names(self) -> tuple[str, ...]:
-        """Names of the flattened output, e.g. ``upstream_nox_ppm[t-3]`` ... ``tailpipe_sensor_ema_ppm[t]``."""
+        """Names of the flattened output, e.g. ``upstream_nox_ppm[t-3]`` ... ``temperature_trend_k[t]``."""
         lags = [f"t-{self.n_stack - 1 - j}" if j < self.n_stack - 1 else "t" for j in range(self.n_stack)]
-        return tuple(f"{f}[{lag}]" for lag in lags for f in FEATURES)
+        return tuple(f"{f}[{lag}]" for lag in lags for f in self.features)
 
 
 class ObservationPipeline:
@@ -95,11 +124,13 @@ class ObservationPipeline:
         c = config
         self._a_surplus = 1.0 - np.exp(-c.dt / c.surplus_time_constant_s)
         self._a_sensor = 1.0 - np.exp(-c.dt / c.sensor_time_constant_s)
-        nf = len(FEATURES)
-        self._history = np.zeros((self.num_envs, c.n_stack, nf), dtype=np.float64)
+        self._a_temp = 1.0 - np.exp(-c.dt / c.temperature_time_constant_s)
+        self._history = np.zeros((self.num_envs, c.n_stack, c.n_features), dtype=np.float64)
         self._surplus = np.zeros(self.num_envs)
         self._sensor = np.zeros(self.num_envs)
+        self._temp = np.zeros(self.num_envs)
         self._stoich_prev = np.zeros(self.num_envs)
+        self._cols = [FEATURES.index(f) for f in c.features]
 
     def _check(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=np.float64)
@@ -112,7 +143,10 @@ class ObservationPipeline:
         return obs[:, 0] * 1e-6 * obs[:, 2] / NH3_MOL_PER_G_ADBLUE
 
     def _features(self, obs: np.ndarray, stoich: np.ndarray) -> np.ndarray:
-        return np.concatenate([obs, stoich[:, None], self._surplus[:, None], self._sensor[:, None]], axis=1)
+        trend = obs[:, 1] - self._temp
+        full = np.concatenate([obs, stoich[:, None], self._surplus[:, None], trend[:, None], self._sensor[:, None]],
+                              axis=1)
+        return full[:, self._cols]
 
     def start(self, obs: np.ndarray, mask: np.ndarray | None = None) -> None:
         obs = self._check(obs)
@@ -122,6 +156,7 @@ class ObservationPipeline:
         stoich = self._stoich(obs)
         self._surplus[idx] = 0.0
         self._sensor[idx] = obs[idx, 3]
+        self._temp[idx] = obs[idx, 1]
         self._stoich_prev[idx] = stoich[idx]
         feats = self._features(obs, stoich)
         self._history[idx] = feats[idx, None, :]
@@ -133,12 +168,25 @@ class ObservationPipeline:
         dosed = 0.5 * (np.clip(obs[:, 4], -1.0, 1.0) + 1.0) * self.config.max_rate_g_s
         self._surplus += self._a_surplus * (dosed - self._stoich_prev - self._surplus)
         self._sensor += self._a_sensor * (obs[:, 3] - self._sensor)
+        self._temp += self._a_temp * (obs[:, 1] - self._temp)
         self._stoich_prev = stoich
         self._history[:, :-1] = self._history[:, 1:]
         self._history[:, -1] = self._features(obs, stoich)
 
     def output(self) -> np.ndarray:
         return self._history.reshape(self.num_envs, -1).astype(np.float32)
+
+    def to_env_action(self, policy_action: np.ndarray) -> np.ndarray:
+        """The environment action (normalised AdBlue rate, (num_envs, 1)) of a policy action: itself with
+        ``action="rate"``; with ``action="anr"``, ANR = (a + 1) / 2 * max_anr times the stoichiometric rate of the
+        latest observation, clipped to the injector range."""
+        a = np.asarray(policy_action, dtype=np.float64).reshape(self.num_envs, -1)
+        c = self.config
+        if c.action == "rate":
+            return a.astype(np.float32)
+        anr = 0.5 * (np.clip(a[:, 0], -1.0, 1.0) + 1.0) * c.max_anr
+        rate = np.clip(anr * self._stoich_prev, 0.0, c.max_rate_g_s)
+        return (2.0 * rate / c.max_rate_g_s - 1.0).astype(np.float32)[:, None]
 
     def output_for(self, i: int) -> np.ndarray:
         return self._history[i].reshape(-1).astype(np.float32)
@@ -162,6 +210,9 @@ class PipelineVecEnv(VecEnvWrapper):
         obs = self.venv.reset()
         self.pipeline.start(obs)
         return self.pipeline.output()
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self.venv.step_async(self.pipeline.to_env_action(actions))
 
     def step_wait(self) -> VecEnvStepReturn:
         obs, rewards, dones, infos = self.venv.step_wait()

@@ -129,7 +129,7 @@ class RLPolicy:
         self._pipe.start(batch, starts)
         x = self.normalize(self._pipe.output())
         action, _ = self.model.predict(x, deterministic=deterministic)
-        action = np.asarray(action, dtype=np.float32).reshape(b, -1)
+        action = self._pipe.to_env_action(action).reshape(b, -1)
         return (action[0] if single else action), state
 
     def reset(self) -> None:

@@ -51,7 +51,7 @@ __all__ = [
     "SurrogateModel",
     "SurrogateSCREnv",
     "SurrogateVectorEnv",
-    "fit_linear_surrogate",
+    "fit_surrogate",
     "make_surrogate_training_env",
     "sim_to_real_gap",
 ]
@@ -80,6 +80,7 @@ class SurrogateModel:
     input_normalizer: Any = None
     output_normalizer: Any = None
     description: str = ""
+    initial_state: Any = None  # callable: physical inputs (1, n_inputs) -> model state at reset; None: zeros
 
     def __post_init__(self) -> None:
         self.input_names = tuple(self.input_names)
@@ -174,8 +175,11 @@ class _Batch:
         self.names[i] = trace.name
         self.k[i] = offset
         self.end[i] = d.shape[0]
-        x = np.zeros((1, self.s.n_states))
         u0 = self.s.inputs(d[offset:offset + 1], np.zeros(1))
+        if self.s.initial_state is None:
+            x = np.zeros((1, self.s.n_states))
+        else:
+            x = np.asarray(self.s.initial_state(u0), dtype=float).reshape(1, self.s.n_states)
         for _ in range(int(SETTLE_S / self.dt)):
             x, y = self.s.step(x, u0)
         self.x[i] = x[0]
@@ -353,14 +357,15 @@ class StackedModels:
 
 
 # --------------------------------------------------------------------------------------------- experiment helpers
-def fit_linear_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str = "mm-arx",
+def fit_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str = "mm-arx",
                          na: int = 2, nb: int = 2) -> tuple[SurrogateModel, dict[str, Any]]:
     """Identify a surrogate on excitation data of random cycles (never the WHTC/WHSC held out for evaluation).
 
     Data: :func:`ident.plant_data.excitation_dataset` on the random cycles ``seeds`` (feedforward ANR 0.9 times
     ``1 + e``, e random steps in [-1, 1] held 4-60 s), concatenated, normalised with their own statistics;
-    inputs (inlet NOx, urea g/min, inlet temperature, flow), outputs (tailpipe NOx, NH3 slip). ``kind``: "arx" or
-    "mm-arx" (local ARX models blended over 2 x 2 regions of temperature and flow, :mod:`ident.multiple_model`).
+    inputs (inlet NOx, urea g/min, inlet temperature, flow), outputs (tailpipe NOx, NH3 slip). ``kind``: "arx",
+    "mm-arx" (local ARX models blended over 2 x 2 regions of temperature and flow, :mod:`ident.multiple_model`) or
+    "greybox" (:class:`control.identified.StorageGreyBox`, physical signals, its own excitation at ANR 1).
     Returns the surrogate and a description with the one-step and simulation fit on a further random cycle.
     """
     from ident.dataset import IODataset
@@ -382,6 +387,24 @@ def fit_linear_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str 
     un, yn = nu.transform(u), ny.transform(y)
     val_n = IODataset(u=nu.transform(val.u), y=ny.transform(val.y), dt=val.dt, input_names=val.input_names,
                       output_names=val.output_names)
+    if kind == "greybox":
+        # the control-oriented storage model of control.identified, fitted on its own excitation design (physical
+        # signals, no normalisers): a model of the structure the linear ones lack
+        from control.identified import StorageGreyBox
+
+        exc_gb = RandomSteps(-0.9, 0.7, 10.0, 120.0)
+        recs = [excitation_dataset("random", seed=s, base_anr=1.0, excitation=exc_gb) for s in seeds]
+        vrec = excitation_dataset("random", seed=max(seeds) + 1, base_anr=1.0, excitation=exc_gb)
+        gb = StorageGreyBox().fit([(r.u, r.y) for r in recs], None)
+        yp = gb.predict(vrec.u)
+        from ident.metrics import fit_percent
+
+        fit = [float(fit_percent(vrec.y[:, j], yp[:, j])) for j in range(3)]
+        desc = f"StorageGreyBox(n_cells={gb.n_cells}) on excitation data of random cycles {list(seeds)}"
+        sur = SurrogateModel(gb, vrec.input_names, vrec.output_names, description=desc,
+                             initial_state=lambda u0: gb.initial_state(u0))
+        return sur, {"model": desc, "validation_fit_percent": fit, "validation_cycle_seed": int(max(seeds) + 1),
+                     "inputs": list(vrec.input_names), "outputs": list(vrec.output_names)}
     if kind == "arx":
         model = ARX(na=na, nb=nb, nk=0).fit(un, yn)
         fit = np.atleast_1d(compare(model, val_n).fit).tolist()
@@ -403,14 +426,14 @@ def fit_linear_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str 
 
 def make_surrogate_training_env(num_envs: int, seed: int, pipeline: Any, env_kwargs: dict | None = None,
                                 kind: str = "mm-arx") -> tuple[Any, dict[str, Any]]:
-    """Fit a surrogate (:func:`fit_linear_surrogate`) and wrap a :class:`SurrogateVectorEnv` on random cycles for
+    """Fit a surrogate (:func:`fit_surrogate`) and wrap a :class:`SurrogateVectorEnv` on random cycles for
     SB3 (adapter, VecMonitor, observation pipeline); returns (venv, info incl. the surrogate object)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from control.rl.pipeline import PipelineVecEnv
     from control.rl.vec_env import GymVectorToSB3
 
-    sur, info = fit_linear_surrogate(kind=kind)
+    sur, info = fit_surrogate(kind=kind)
     kw = {k: v for k, v in (env_kwargs or {}).items() if k in ("reward_weights", "dt")}
     venv = SurrogateVectorEnv(sur, num_envs=num_envs, cycle="random", random_offsets=True, **kw)
     sb3 = GymVectorToSB3(venv)

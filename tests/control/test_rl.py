@@ -77,7 +77,7 @@ def test_adapter_seeding_is_deterministic():
 
 # ------------------------------------------------------------------------------------------------ pipeline
 def test_pipeline_history_and_restart():
-    cfg = PipelineConfig(n_stack=3)
+    cfg = PipelineConfig(n_stack=3, use_tailpipe_sensor=True)
     p = ObservationPipeline(cfg, num_envs=2)
     o0 = np.array([[500.0, 550.0, 5.0, 100.0, -1.0], [200.0, 500.0, 3.0, 50.0, -1.0]])
     p.start(o0)
@@ -98,17 +98,36 @@ def test_pipeline_history_and_restart():
     assert len(cfg.output_names) == cfg.output_size == 3 * len(FEATURES)
 
 
+def test_anr_action_doses_on_the_feedforward():
+    cfg = PipelineConfig(action="anr", max_anr=2.0)
+    p = ObservationPipeline(cfg, num_envs=3)
+    obs = np.array([[500.0, 550.0, 5.0, 0.0, -1.0], [100.0, 500.0, 2.0, 0.0, -1.0], [3000.0, 600.0, 20.0, 0.0, -1.0]])
+    p.start(obs)
+    stoich = obs[:, 0] * 1e-6 * obs[:, 2] / 0.010822  # g/s AdBlue at ANR 1
+    env_a = p.to_env_action(np.array([[0.0], [-1.0], [1.0]]))
+    rate = (env_a[:, 0] + 1.0) / 2.0 * 3.0
+    assert rate[0] == pytest.approx(stoich[0], rel=1e-3)  # action 0 = ANR 1
+    assert rate[1] == pytest.approx(0.0, abs=1e-6)  # action -1 = ANR 0
+    assert rate[2] == pytest.approx(3.0)  # ANR 2 on a large NOx flow: clipped to the injector limit
+    assert np.array_equal(PipelineConfig().features, tuple(f for f in FEATURES if "sensor" not in f))
+    with pytest.raises(ValueError, match="action"):
+        PipelineConfig(action="ppm")
+
+
 def test_pipeline_vec_env_stacks_terminal_observation():
-    venv = PipelineVecEnv(make_sb3_vec_env(2, **SHORT), PipelineConfig(n_stack=2))
+    cfg = PipelineConfig(n_stack=2)
+    nf = cfg.n_features
+    assert "tailpipe_nox_sensor_ppm" not in cfg.features  # the default pipeline is feed-forward with memory
+    venv = PipelineVecEnv(make_sb3_vec_env(2, **SHORT), cfg)
     venv.seed(0)
     obs = venv.reset()
-    assert obs.shape == (2, 2 * len(FEATURES))
+    assert obs.shape == (2, 2 * nf)
     for _ in range(41):
         obs, _, dones, infos = venv.step(np.zeros((2, 1), dtype=np.float32))
         if dones.any():
             i = int(np.flatnonzero(dones)[0])
-            term = infos[i]["terminal_observation"].reshape(2, len(FEATURES))
-            new = obs[i].reshape(2, len(FEATURES))
+            term = infos[i]["terminal_observation"].reshape(2, nf)
+            new = obs[i].reshape(2, nf)
             assert np.allclose(new[0], new[1])  # restarted
             assert not np.allclose(term[1], new[1])
             return
@@ -122,7 +141,8 @@ def test_training_smoke_save_load_and_evaluate(tmp_path, torch_one_thread):
 
     t0 = time.perf_counter()
     res = train("ppo", 2048, seed=0, num_envs=2, out=None, env_kwargs={"random_cycle_duration_s": 60.0},
-                progress_bar=False, hyperparameters={"n_steps": 256, "batch_size": 128, "n_epochs": 2})
+                pipeline=PipelineConfig(action="anr"), progress_bar=False,
+                hyperparameters={"n_steps": 256, "batch_size": 128, "n_epochs": 2})
     path = res.save(tmp_path, "ppo_smoke")
     assert time.perf_counter() - t0 < 60.0
     meta = json.loads(path.read_text())
@@ -135,11 +155,11 @@ def test_training_smoke_save_load_and_evaluate(tmp_path, torch_one_thread):
     action, state = policy.predict(obs, episode_start=np.array([True]))
     assert action.shape == (1,) and -1.0 <= action[0] <= 1.0 and state is None
     # the loaded policy applies the normaliser itself: same action as the model on the normalised pipeline output
-    pipe = ObservationPipeline(PipelineConfig(), 1)
+    pipe = ObservationPipeline(PipelineConfig(action="anr"), 1)
     pipe.start(obs[None])
     x = res.vec_normalize.normalize_obs(pipe.output())
     ref, _ = res.model.predict(x, deterministic=True)
-    np.testing.assert_allclose(action, ref[0], atol=1e-6)
+    np.testing.assert_allclose(action, pipe.to_env_action(ref)[0], atol=1e-6)
     results = evaluate(policy, cycles=("whtc",), seeds=(0,), max_steps=20, name="ppo")
     assert results[0].timing["policy_time_ms_median"] < 20.0
 
