@@ -7,7 +7,14 @@
 Training runs on the native vector environment (``cycle="random"``, random start offsets) through the stack of
 :mod:`control.rl.training`; TensorBoard logs and checkpoints go to the run folder (``--out``, default
 ``runs/train_rl/<algo>/<time>``); the trained policy is written there in the shipped format (``policy/``), and with
-``--ship`` also to ``control/policies/``. The evaluation uses :func:`control.evaluation.evaluate` on the WHTC and WHSC
+``--ship`` also to ``control/policies/``.
+
+Checkpoint selection (validation, not the test cycles): every checkpoint and the final policy run four hot-start
+random cycles of 3600 s (reset seeds 1001-1004, :data:`VALIDATION_SEEDS`); the policy shipped is the one with the
+lowest mean tailpipe NOx among those whose worst mean slip there is at most 10 ppm (``--no-select``: the final one).
+Long training drifts towards storing NH3 at mid temperatures (more conversion now) and releasing it later; the
+validation catches that, the training return does not. ``--select-from RUN_FOLDER`` redoes the selection and the
+evaluation of a finished run. The evaluation uses :func:`control.evaluation.evaluate` on the WHTC and WHSC
 (hot start, sensor noise, seeds ``--eval-seeds``) for the policy, the look-up-table baseline
 (:class:`control.baselines.LookupTableDosing`) and flat feedforward at ANR 0.9 and 1.0; ``--json`` gets the KPIs and the wall
 time. With ``--surrogate`` the agent trains on an identified model (:mod:`control.rl.surrogate`) and the JSON
@@ -16,6 +23,7 @@ also reports its KPIs on the surrogate versus the first-principles plant (the si
 from __future__ import annotations
 
 import argparse
+import json
 import shlex
 import shutil
 import sys
@@ -32,6 +40,12 @@ from experiments._runs import run_folder, write_json
 #: With equal weights (40, 40) PPO learned to store NH3 at mid temperatures and slipped 19-182 ppm on the WHTC's
 #: hot part; the slip weight is the Lagrange multiplier of the 10 ppm mean-slip limit, set with margin.
 TRAIN_REWARD_WEIGHTS = {"nox": 40.0, "nh3": 150.0, "adblue": 1.0}
+
+
+#: checkpoint selection (validation, never the held-out WHTC/WHSC): hot-start random cycles of this length, seeds
+VALIDATION_DURATION_S = 3600.0
+VALIDATION_SEEDS = (1001, 1002, 1003, 1004)
+VALIDATION_SLIP_LIMIT_PPM = 10.0
 
 
 class FeedforwardANR:
@@ -79,7 +93,7 @@ def evaluate_policies(policies: dict[str, Any], cycles: tuple[str, ...], seeds: 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--algo", choices=("ppo", "sac", "td3"), required=True)
-    p.add_argument("--timesteps", type=int, required=True, help="environment steps (all plants together)")
+    p.add_argument("--timesteps", type=int, default=0, help="environment steps (all plants together)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--num-envs", type=int, default=None, help="plants in the vector env (default per algorithm)")
     p.add_argument("--out", type=Path, default=None, help="run folder (default runs/train_rl/<algo>/<time>)")
@@ -89,6 +103,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--n-stack", type=int, default=4, help="observation history length of the pipeline")
     p.add_argument("--action", choices=("rate", "anr"), default="rate",
                    help="policy action: the AdBlue rate (env action) or an NH3-to-NOx ratio on the feed-forward")
+    p.add_argument("--long-surplus-s", type=float, default=0.0,
+                   help="time constant [s] of the long NH3-surplus average fed to the policy (0: none)")
     p.add_argument("--use-sensor", action="store_true",
                    help="feed the tailpipe NOx sensor to the policy (default: feed-forward with memory)")
     p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -100,7 +116,61 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--reward-weights", type=float, nargs=3, metavar=("NOX", "NH3", "ADBLUE"), default=None,
                    help="training reward weights [g AdBlue equivalent per g] (default TRAIN_REWARD_WEIGHTS)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-select", action="store_true",
+                   help="ship the final policy instead of the checkpoint selected on the validation cycles")
+    p.add_argument("--select-from", type=Path, default=None,
+                   help="no training: select among the checkpoints of this finished run folder and evaluate")
     return p.parse_args(argv)
+
+
+def validate(candidates: list[Path], seeds: tuple[int, ...] = VALIDATION_SEEDS) -> list[dict[str, Any]]:
+    """KPIs of each candidate policy on the validation cycles (long random cycles, never the WHTC/WHSC)."""
+    from control.evaluation import evaluate
+    from control.rl.policy import load_policy
+
+    rows = []
+    for path in candidates:
+        res = evaluate(load_policy(path), cycles=("random",), seeds=seeds,
+                       env_kwargs={"random_cycle_duration_s": VALIDATION_DURATION_S}, name=path.stem)
+        tp = [r.kpis["tailpipe_nox_g_per_kwh"] for r in res]
+        slip = [r.kpis["mean_nh3_slip_ppm"] for r in res]
+        rows.append({"candidate": str(path), "timesteps": int(json.loads(path.read_text()).get("timesteps", 0)),
+                     "tailpipe_nox_g_per_kwh_mean": float(np.mean(tp)), "mean_nh3_slip_ppm_max": float(np.max(slip)),
+                     "tailpipe_nox_g_per_kwh": tp, "mean_nh3_slip_ppm": slip})
+        print(f"validation {path.stem:16s} tailpipe {np.mean(tp):.3f} g/kWh  worst mean slip {np.max(slip):.1f} ppm",
+              flush=True)
+    return rows
+
+
+def select(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The rule: lowest mean validation tailpipe NOx among candidates whose worst validation mean slip is at most
+    :data:`VALIDATION_SLIP_LIMIT_PPM`; if none is, the one with the lowest worst slip."""
+    ok = [r for r in rows if r["mean_nh3_slip_ppm_max"] <= VALIDATION_SLIP_LIMIT_PPM]
+    if ok:
+        return min(ok, key=lambda r: r["tailpipe_nox_g_per_kwh_mean"])
+    return min(rows, key=lambda r: r["mean_nh3_slip_ppm_max"])
+
+
+def candidates_in(folder: Path) -> list[Path]:
+    """Checkpoints (``checkpoints/*.json``) and the final policy (``policy/*.json``) of a run folder."""
+    found = sorted((folder / "checkpoints").glob("*.json"), key=lambda p: int(json.loads(p.read_text())["timesteps"]))
+    return found + sorted((folder / "policy").glob("*.json"))[:1]
+
+
+def install(src_json: Path, folder: Path, name: str, extra: dict[str, Any]) -> Path:
+    """Copy a saved policy (zip, NPZ, JSON) under the name ``name`` into ``folder``, metadata updated by ``extra``."""
+    meta = json.loads(src_json.read_text())
+    folder.mkdir(parents=True, exist_ok=True)
+    src = src_json.parent
+    if src.resolve() != folder.resolve() or meta["files"]["model"] != f"{name}.zip":
+        shutil.copy2(src / meta["files"]["model"], folder / f"{name}.zip")
+        shutil.copy2(src / meta["files"]["normalizer"], folder / f"{name}_vecnormalize.npz")
+    meta.update(extra)
+    meta["name"] = name
+    meta["files"] = {"model": f"{name}.zip", "normalizer": f"{name}_vecnormalize.npz"}
+    out = folder / f"{name}.json"
+    out.write_text(json.dumps(meta, indent=2, default=str), encoding="utf-8")
+    return out
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -110,33 +180,60 @@ def main(argv: list[str] | None = None) -> dict:
     from control.rl.training import train
 
     name = args.name or args.algo
-    out = args.out or run_folder(f"train_rl/{args.algo}")
-    out.mkdir(parents=True, exist_ok=True)
     command = "python -m experiments.train_rl " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
-    weights = None if args.default_reward else dict(TRAIN_REWARD_WEIGHTS)
-    if args.reward_weights is not None:
-        weights = dict(zip(("nox", "nh3", "adblue"), args.reward_weights))
-    env_kwargs = {} if weights is None else {"reward_weights": weights}
-    pipeline = PipelineConfig(n_stack=args.n_stack, use_tailpipe_sensor=args.use_sensor, action=args.action)
-    venv = None
     surrogate_info: dict[str, Any] = {}
-    if args.surrogate:
-        from control.rl.surrogate import make_surrogate_training_env
+    if args.select_from is not None:
+        out = args.select_from
+        final_json = min((out / "policy").glob("*.json"))
+        train_meta = json.loads(final_json.read_text())
+        wall, timesteps = float(train_meta["wall_time_s"]), int(train_meta["timesteps"])
+    else:
+        if args.timesteps < 1:
+            raise SystemExit("--timesteps N is needed to train (or --select-from RUN_FOLDER)")
+        out = args.out or run_folder(f"train_rl/{args.algo}")
+        out.mkdir(parents=True, exist_ok=True)
+        weights = None if args.default_reward else dict(TRAIN_REWARD_WEIGHTS)
+        if args.reward_weights is not None:
+            weights = dict(zip(("nox", "nh3", "adblue"), args.reward_weights))
+        env_kwargs = {} if weights is None else {"reward_weights": weights}
+        pipeline = PipelineConfig(n_stack=args.n_stack, use_tailpipe_sensor=args.use_sensor, action=args.action,
+                                  long_surplus_time_constant_s=args.long_surplus_s)
+        venv = None
+        if args.surrogate:
+            from control.rl.surrogate import make_surrogate_training_env
 
-        venv, surrogate_info = make_surrogate_training_env(args.num_envs or 8, args.seed, pipeline, env_kwargs,
-                                                           kind=args.surrogate)
-    meta = {"command": command, "machine": "2 cores shared (torch threads = 1)",
-            "reward_weights_training": weights or "environment default (20, 60, 1)",
-            "trained_on": "surrogate: " + surrogate_info.get("model", "") if args.surrogate
-            else "UreaSCRVectorEnv, random cycles (1800 s, pool of 32 per seed), random start offsets"}
-    result = train(args.algo, args.timesteps, seed=args.seed, num_envs=args.num_envs, out=out, pipeline=pipeline,
-                   env_kwargs=env_kwargs, progress_bar=not args.no_progress,
-                   checkpoint_every=args.checkpoint_every, venv=venv, metadata=meta)
-    if args.surrogate:
-        result.metadata["observation_names"] = list(surrogate_info["observation_names"])
-        result.metadata["env_kwargs"] = surrogate_info["env_kwargs"]
-    print(f"trained {args.algo} for {result.metadata['timesteps']} steps in {result.wall_time_s:.0f} s")
-    json_path = result.save(out / "policy", name)
+            venv, surrogate_info = make_surrogate_training_env(args.num_envs or 8, args.seed, pipeline, env_kwargs,
+                                                               kind=args.surrogate)
+        meta = {"command": command, "machine": "2 cores shared with other jobs (torch threads = 1)",
+                "reward_weights_training": weights or "environment default (20, 60, 1)",
+                "trained_on": "surrogate: " + surrogate_info.get("model", "") if args.surrogate
+                else "UreaSCRVectorEnv, random cycles (1800 s, pool of 32 per seed), random start offsets"}
+        result = train(args.algo, args.timesteps, seed=args.seed, num_envs=args.num_envs, out=out, pipeline=pipeline,
+                       env_kwargs=env_kwargs, progress_bar=not args.no_progress,
+                       checkpoint_every=args.checkpoint_every, venv=venv, metadata=meta)
+        if args.surrogate:
+            result.metadata["observation_names"] = list(surrogate_info["observation_names"])
+            result.metadata["env_kwargs"] = surrogate_info["env_kwargs"]
+        wall, timesteps = result.wall_time_s, int(result.metadata["timesteps"])
+        print(f"trained {args.algo} for {timesteps} steps in {wall:.0f} s")
+        final_json = result.save(out / "policy", name)
+    selection: dict[str, Any] = {}
+    chosen = final_json
+    if not args.no_select and not args.surrogate:
+        rows = validate(candidates_in(out))
+        best = select(rows)
+        chosen = Path(best["candidate"])
+        selection = {"rule": f"lowest mean tailpipe NOx on the validation cycles among candidates with worst mean "
+                             f"slip <= {VALIDATION_SLIP_LIMIT_PPM} ppm (else lowest worst slip)",
+                     "validation_cycles": f"random cycles of {VALIDATION_DURATION_S:.0f} s, hot start, reset seeds "
+                                          f"{list(VALIDATION_SEEDS)} (never the WHTC/WHSC)",
+                     "chosen": str(chosen), "chosen_timesteps": best["timesteps"], "candidates": rows}
+        print(f"selected {chosen.name} ({best['timesteps']} steps)")
+    json_path = install(chosen, out / "selected", name, {
+        "command": command if args.select_from is None else json.loads(final_json.read_text())["command"],
+        "selection_command": command if args.select_from is not None else None,
+        "training_wall_time_s": round(wall, 1), "training_timesteps": timesteps,
+        "wall_time_s": round(wall, 1), "selection": selection or None})
     policy = load_policy(json_path)
     cycles = ("whtc", "whsc")
     seeds = tuple(args.eval_seeds)
@@ -144,30 +241,25 @@ def main(argv: list[str] | None = None) -> dict:
     summary, _ = evaluate_policies({name: policy, **reference_policies()}, cycles, seeds)
     eval_s = time.perf_counter() - t0
     report: dict[str, Any] = {
-        "algo": args.algo, "name": name, "timesteps": result.metadata["timesteps"], "seed": args.seed,
-        "training_wall_time_s": round(result.wall_time_s, 1), "evaluation_wall_time_s": round(eval_s, 1),
+        "algo": args.algo, "name": name, "timesteps": policy.metadata.get("timesteps"),
+        "training_timesteps": timesteps, "seed": policy.metadata.get("seed"),
+        "training_wall_time_s": round(wall, 1), "evaluation_wall_time_s": round(eval_s, 1),
         "command": command, "eval_seeds": list(seeds), "run_folder": str(out), "policy": str(json_path),
-        "cycles": {c: {"controllers": summary[c]} for c in cycles},
+        "selection": selection or None, "cycles": {c: {"controllers": summary[c]} for c in cycles},
     }
     if args.surrogate:
         from control.rl.surrogate import sim_to_real_gap
 
         report["surrogate"] = {k: v for k, v in surrogate_info.items() if k != "surrogate_object"}
         report["sim_to_real"] = sim_to_real_gap(policy, surrogate_info, cycles, seeds)
-    # store the held-out evaluation in the policy's metadata too
-    import json
-
-    meta_file = Path(json_path)
-    meta_all = json.loads(meta_file.read_text())
+    meta_all = json.loads(json_path.read_text())
     meta_all["evaluation"] = {c: {k: {kk: summary[c][k][kk] for kk in ("tailpipe_nox_g_per_kwh", "mean_nh3_slip_ppm",
                                                                             "peak_nh3_slip_ppm", "adblue_g")}
                                   for k in summary[c]} for c in cycles}
     meta_all["evaluation_seeds"] = list(seeds)
-    meta_file.write_text(json.dumps(meta_all, indent=2))
+    json_path.write_text(json.dumps(meta_all, indent=2, default=str))
     if args.ship:
-        for f in (f"{name}.zip", f"{name}_vecnormalize.npz", f"{name}.json"):
-            shutil.copy2(out / "policy" / f, POLICY_DIR / f)
-        report["shipped"] = str(POLICY_DIR / f"{name}.json")
+        report["shipped"] = str(install(json_path, POLICY_DIR, name, {}))
     write_json(out / "report.json", report)
     if args.json:
         write_json(args.json, report)

@@ -12,6 +12,7 @@ is stable-baselines3's ``VecNormalize`` (its statistics are shipped with each po
    | ``nh3_surplus_ema_g_s`` | g/s | exponential moving average (``surplus_time_constant_s``, 60 s) of the previous dose minus the stoichiometric dose: a crude proxy of the NH3 put into storage over the last minute |
    | ``temperature_trend_k`` | K | inlet temperature minus its moving average (``temperature_time_constant_s``, 60 s): a rising temperature releases stored NH3 |
    | ``tailpipe_sensor_ema_ppm`` | ppm | moving average (``sensor_time_constant_s``, 10 s) of the tailpipe NOx sensor |
+   | ``nh3_surplus_long_ema_g_s`` | g/s | as ``nh3_surplus_ema_g_s`` over ``long_surplus_time_constant_s`` (e.g. 600 s; only if > 0): the NH3 stored over the last minutes, which a later temperature rise releases |
 
    With ``use_tailpipe_sensor=False`` the tailpipe sensor and its average are left out: the policy is then a
    learned feed-forward with memory (inlet conditions, its own previous doses), immune to the sensor's NH3
@@ -53,7 +54,7 @@ EXPECTED_OBSERVATION = tuple(OBS_BASE)
 #: per-step features, in order (``tailpipe_nox_sensor_ppm`` and ``tailpipe_sensor_ema_ppm`` only with
 #: ``PipelineConfig.use_tailpipe_sensor``)
 FEATURES = EXPECTED_OBSERVATION + ("stoichiometric_adblue_g_s", "nh3_surplus_ema_g_s", "temperature_trend_k",
-                                   "tailpipe_sensor_ema_ppm")
+                                   "tailpipe_sensor_ema_ppm", "nh3_surplus_long_ema_g_s")
 _SENSOR_FEATURES = ("tailpipe_nox_sensor_ppm", "tailpipe_sensor_ema_ppm")
 
 
@@ -68,6 +69,7 @@ class PipelineConfig:
     sensor_time_constant_s: float = 10.0  # s [chosen: averages out sensor noise and short spikes]
     temperature_time_constant_s: float = 60.0  # s [chosen: a rise against the last minute releases stored NH3]
     use_tailpipe_sensor: bool = False
+    long_surplus_time_constant_s: float = 0.0  # s; > 0 adds nh3_surplus_long_ema_g_s (0: left out)
     action: str = "rate"  # "rate": the policy outputs the env action; "anr": it outputs an NH3-to-NOx ratio
     max_anr: float = 2.0  # with action "anr": policy action -1..1 -> ANR 0..max_anr
 
@@ -76,6 +78,8 @@ class PipelineConfig:
             raise ValueError(f"n_stack must be a positive integer, got {self.n_stack!r}")
         if self.action not in ("rate", "anr"):
             raise ValueError(f"action must be 'rate' or 'anr', got {self.action!r}")
+        if not (np.isfinite(self.long_surplus_time_constant_s) and self.long_surplus_time_constant_s >= 0):
+            raise ValueError("long_surplus_time_constant_s must be >= 0")
         for name in ("dt", "max_rate_g_s", "surplus_time_constant_s", "sensor_time_constant_s",
                      "temperature_time_constant_s", "max_anr"):
             v = getattr(self, name)
@@ -92,9 +96,10 @@ class PipelineConfig:
     @property
     def features(self) -> tuple[str, ...]:
         """The per-step features of this configuration, in order."""
-        if self.use_tailpipe_sensor:
-            return FEATURES
-        return tuple(f for f in FEATURES if f not in _SENSOR_FEATURES)
+        out = FEATURES if self.use_tailpipe_sensor else tuple(f for f in FEATURES if f not in _SENSOR_FEATURES)
+        if self.long_surplus_time_constant_s <= 0:
+            out = tuple(f for f in out if f != "nh3_surplus_long_ema_g_s")
+        return out
 
     @property
     def n_features(self) -> int:
@@ -125,6 +130,9 @@ class ObservationPipeline:
         self._a_surplus = 1.0 - np.exp(-c.dt / c.surplus_time_constant_s)
         self._a_sensor = 1.0 - np.exp(-c.dt / c.sensor_time_constant_s)
         self._a_temp = 1.0 - np.exp(-c.dt / c.temperature_time_constant_s)
+        tl = c.long_surplus_time_constant_s
+        self._a_long = 1.0 - np.exp(-c.dt / tl) if tl > 0 else 0.0
+        self._long = np.zeros(self.num_envs)
         self._history = np.zeros((self.num_envs, c.n_stack, c.n_features), dtype=np.float64)
         self._surplus = np.zeros(self.num_envs)
         self._sensor = np.zeros(self.num_envs)
@@ -144,8 +152,8 @@ class ObservationPipeline:
 
     def _features(self, obs: np.ndarray, stoich: np.ndarray) -> np.ndarray:
         trend = obs[:, 1] - self._temp
-        full = np.concatenate([obs, stoich[:, None], self._surplus[:, None], trend[:, None], self._sensor[:, None]],
-                              axis=1)
+        full = np.concatenate([obs, stoich[:, None], self._surplus[:, None], trend[:, None], self._sensor[:, None],
+                               self._long[:, None]], axis=1)
         return full[:, self._cols]
 
     def start(self, obs: np.ndarray, mask: np.ndarray | None = None) -> None:
@@ -155,6 +163,7 @@ class ObservationPipeline:
             return
         stoich = self._stoich(obs)
         self._surplus[idx] = 0.0
+        self._long[idx] = 0.0
         self._sensor[idx] = obs[idx, 3]
         self._temp[idx] = obs[idx, 1]
         self._stoich_prev[idx] = stoich[idx]
@@ -167,6 +176,7 @@ class ObservationPipeline:
         # the previous action (obs[:, 4]) was dosed against the previous step's stoichiometric rate
         dosed = 0.5 * (np.clip(obs[:, 4], -1.0, 1.0) + 1.0) * self.config.max_rate_g_s
         self._surplus += self._a_surplus * (dosed - self._stoich_prev - self._surplus)
+        self._long += self._a_long * (dosed - self._stoich_prev - self._long)
         self._sensor += self._a_sensor * (obs[:, 3] - self._sensor)
         self._temp += self._a_temp * (obs[:, 1] - self._temp)
         self._stoich_prev = stoich

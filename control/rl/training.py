@@ -125,12 +125,17 @@ class CheckpointCallback(BaseCallback):
         self.name = name
         self.metadata = metadata
         self._next = self.every
+        self._t0 = time.perf_counter()
+
+    def _on_training_start(self) -> None:
+        self._t0 = time.perf_counter()
 
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next:
             self._next += self.every
             norm = self.model.get_vec_normalize_env()
-            meta = dict(self.metadata, timesteps=int(self.num_timesteps))
+            meta = dict(self.metadata, timesteps=int(self.num_timesteps),
+                        wall_time_s=round(time.perf_counter() - self._t0, 1))
             save_policy(self.model, norm.obs_rms.mean, norm.obs_rms.var, self.folder,
                         f"{self.name}_{self.num_timesteps}", meta, clip_obs=norm.clip_obs, epsilon=norm.epsilon)
         return True

@@ -81,21 +81,21 @@ def test_pipeline_history_and_restart():
     p = ObservationPipeline(cfg, num_envs=2)
     o0 = np.array([[500.0, 550.0, 5.0, 100.0, -1.0], [200.0, 500.0, 3.0, 50.0, -1.0]])
     p.start(o0)
-    out = p.output().reshape(2, 3, len(FEATURES))
+    out = p.output().reshape(2, 3, cfg.n_features)
     assert np.allclose(out[:, 0], out[:, 2])  # history filled with the first observation
     o1 = o0.copy()
     o1[:, 0] += 100.0
     p.advance(o1)
-    out = p.output().reshape(2, 3, len(FEATURES))
+    out = p.output().reshape(2, 3, cfg.n_features)
     assert np.allclose(out[:, -1, :5], o1) and np.allclose(out[:, -2, :5], o0)
     # stoichiometric AdBlue = NOx * 1e-6 * flow / 0.0108 mol/g
     assert out[0, -1, 5] == pytest.approx(600e-6 * 5.0 / 0.010822, rel=1e-3)
     p.start(o0, mask=np.array([True, False]))
-    out2 = p.output().reshape(2, 3, len(FEATURES))
+    out2 = p.output().reshape(2, 3, cfg.n_features)
     assert np.allclose(out2[0, :, :5], o0[0]) and np.allclose(out2[1], out[1])
     with pytest.raises(ValueError, match="shape"):
         p.advance(np.zeros((2, 6)))
-    assert len(cfg.output_names) == cfg.output_size == 3 * len(FEATURES)
+    assert len(cfg.output_names) == cfg.output_size == 3 * cfg.n_features == 3 * (len(FEATURES) - 1)
 
 
 def test_anr_action_doses_on_the_feedforward():
@@ -109,7 +109,8 @@ def test_anr_action_doses_on_the_feedforward():
     assert rate[0] == pytest.approx(stoich[0], rel=1e-3)  # action 0 = ANR 1
     assert rate[1] == pytest.approx(0.0, abs=1e-6)  # action -1 = ANR 0
     assert rate[2] == pytest.approx(3.0)  # ANR 2 on a large NOx flow: clipped to the injector limit
-    assert np.array_equal(PipelineConfig().features, tuple(f for f in FEATURES if "sensor" not in f))
+    assert PipelineConfig().features == tuple(f for f in FEATURES if "sensor" not in f and "long" not in f)
+    assert PipelineConfig(long_surplus_time_constant_s=600.0).features[-1] == "nh3_surplus_long_ema_g_s"
     with pytest.raises(ValueError, match="action"):
         PipelineConfig(action="ppm")
 
