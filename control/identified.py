@@ -133,6 +133,11 @@ class StorageGreyBox:
         self.sensor_gains_ = np.linalg.lstsq(np.vstack(A), np.concatenate(b), rcond=None)[0]
         return self
 
+    @property
+    def storage_capacity_mol(self) -> float:
+        """Identified NH3 storage capacity of the brick [mol]."""
+        return float(_NOMINAL["omega_mol"] * np.exp(self.params_[0]))
+
     @classmethod
     def from_params(cls, params: np.ndarray, sensor_gains: np.ndarray, n_cells: int = 2,
                     dt: float = 0.5) -> StorageGreyBox:

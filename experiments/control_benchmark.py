@@ -61,21 +61,24 @@ def identify(seeds: tuple[int, ...] = IDENT_SEEDS) -> dict[str, Any]:
                                          for i, n in enumerate(("tailpipe_nox", "nh3", "sensor"))}}
 
 
-def identified_mpc(ident: dict[str, Any], quick: bool = False) -> Any:
-    """NMPC on the identified grey-box model, EKF on the tailpipe NOx sensor."""
+def identified_mpc(ident: dict[str, Any], quick: bool = False, storage_value_g_per_mol: float = 0.0) -> Any:
+    """NMPC on the identified grey-box model, EKF on the tailpipe NOx sensor. ``storage_value_g_per_mol`` > 0 adds
+    the oracle's terminal value of stored NH3 on the identified storage state (off by default: not yet evaluated)."""
     from control.identified import StorageGreyBox
     from control.models import IdentifiedModelAdapter
     from control.mpc import NonlinearMPC
 
     m = StorageGreyBox.from_params(ident["params"], ident["sensor_gains"], ident["n_cells"], ident["dt"])
     n = m.n_cells
+    sites_per_cell = m.storage_capacity_mol / n
     adapter = IdentifiedModelAdapter(
         m, input_mean=np.zeros(4), input_scale=np.ones(4), output_mean=np.zeros(3), output_scale=np.ones(3),
         output_indices=(0, 1), measured_output=2, process_noise=np.r_[np.full(n, 1e-6), 0.5],
         measurement_noise=100.0, state_bounds=(np.r_[np.zeros(n), 250.0], np.r_[np.ones(n), 900.0]),
         initial_state=lambda obs: np.r_[np.zeros(n), obs[1]], model_dt=ident["dt"],
         # the grey-box parameters are continuous-time: the same model discretised at the 2 s stage length
-        stage_model=StorageGreyBox.from_params(ident["params"], ident["sensor_gains"], n, ident["dt"] * 4))
+        stage_model=StorageGreyBox.from_params(ident["params"], ident["sensor_gains"], n, ident["dt"] * 4),
+        terminal_cost=lambda x: -storage_value_g_per_mol * sites_per_cell * sum(x[j] for j in range(n)))
     return NonlinearMPC(adapter, horizon=10 if quick else 20, stage_steps=4, preview=False, **IDENT_SOLVER)
 
 
@@ -176,11 +179,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
           + ", ".join(f"{k} {a:.1f}/{b:.1f}" for k, (a, b) in ident["validation_mean_ppm_whtc"].items()), flush=True)
     names = ["mpc_oracle", "mpc_identified", "pi", "lookup_table", *rl]  # slowest first
     jobs = [(n, c, ident if n == "mpc_identified" else None, args.quick) for n in names for c in cycles]
-    if args.workers > 1:
-        with ProcessPoolExecutor(max_workers=args.workers) as ex:
-            results = list(ex.map(_job, jobs))
-    else:
-        results = [_job(j) for j in jobs]
+    results = []
+    with ProcessPoolExecutor(max_workers=max(args.workers, 1)) as ex:
+        for r in ex.map(_job, jobs):
+            k = r.kpis
+            print(f"  {r.name:15s} {r.cycle}: {k.get('tailpipe_nox_g_per_kwh', np.nan):.3f} g/kWh, "
+                  f"{k.get('mean_nh3_slip_ppm', np.nan):.2f} ppm mean slip ({r.stats['wall_time_s']:.0f} s)", flush=True)
+            results.append(r)
     order = {n: i for i, n in enumerate([*CORE, *rl])}
     results.sort(key=lambda r: (cycles.index(r.cycle) if r.cycle in cycles else 0, order.get(r.name, 99)))
     table = comparison_table(results, extra=("solve_time_ms_median", "solve_time_ms_p95", "solver_failures"))
