@@ -1,0 +1,53 @@
+"""identify_then_control: the gap-closed measure respects the slip limit; held-out segments; the output stack."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from experiments.identify_then_control import SLIP_LIMIT_PPM, gap_closed, held_out
+from ident.linear import ARX
+from ident.stack import OutputStack
+
+
+def _row(g_per_kwh: float, slip: float) -> dict[str, float]:
+    return {"tailpipe_nox_g_per_kwh": g_per_kwh, "mean_nh3_slip_ppm": slip}
+
+
+def test_gap_closed_counts_only_controllers_within_the_slip_limit() -> None:
+    kpis = {"whtc": {"lookup_table": _row(0.6, 7.0), "mpc_oracle": _row(0.4, 1.0), "mpc_a": _row(0.45, 3.0),
+                     "mpc_b": _row(0.2, SLIP_LIMIT_PPM + 5.0)}}
+    gaps, excluded = gap_closed(kpis)
+    assert abs(gaps["a"]["whtc"] - 0.75) < 1e-12
+    assert "b" not in gaps
+    assert excluded[0]["model"] == "b" and abs(excluded[0]["raw_fraction"] - 2.0) < 1e-12
+
+
+def test_gap_closed_needs_an_oracle_within_the_limit() -> None:
+    kpis = {"whtc": {"lookup_table": _row(0.6, 7.0), "mpc_oracle": _row(0.4, 50.0), "mpc_a": _row(0.45, 3.0)}}
+    gaps, excluded = gap_closed(kpis)
+    assert gaps == {} and excluded[0]["reason"].startswith("oracle")
+
+
+def test_quick_held_out_is_the_start_of_the_whtc() -> None:
+    (trace,) = held_out(quick=True)
+    assert trace.n_steps == 1200 and trace.name.startswith("whtc")
+    full = held_out(quick=False)
+    assert [t.name for t in full] == ["whtc", "whsc"]
+    np.testing.assert_array_equal(trace.nox_ppm, full[0].nox_ppm[:1200])
+
+
+def test_output_stack_predicts_and_exports_like_its_parts() -> None:
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal((400, 2))
+    y = np.column_stack([np.convolve(u[:, 0], [0.5, 0.3], "full")[:400], np.convolve(u[:, 1], [0.2, 0.1], "full")[:400]])
+    stack = OutputStack([ARX(na=1, nb=2, nk=0), ARX(na=1, nb=2, nk=0)]).fit(u, y)
+    yp = stack.predict(u)
+    assert yp.shape == (400, 2)
+    f = stack.to_casadi()
+    x = np.zeros(int(f.size1_in(0)))
+    ys = []
+    for t in range(400):
+        x, yt = f(x, u[t])
+        ys.append(np.asarray(yt).ravel())
+    np.testing.assert_allclose(np.array(ys), yp, atol=1e-8)
+    assert isinstance(f, ca.Function)
