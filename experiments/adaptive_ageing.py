@@ -14,7 +14,8 @@ life keeps 60 % of the NH3 storage capacity and 50 % of the SCR/oxidation activi
 Controllers (both see the measured signals only, every episode a hot start with an empty catalyst):
 
 * ``fixed``: :func:`experiments.control_benchmark.identified_mpc` on the fresh-catalyst model, for every cycle.
-* ``adaptive``: the same MPC (same horizon, weights, solver, EKF noise, terminal value of stored NH3), whose
+* ``adaptive``: the same MPC (same horizon, weights, solver, EKF noise; its terminal cost, if any, scaled with
+  the capacity exp(d_cap)), whose
   prediction model carries two drift parameters d = (d_cap, d_act), log retentions relative to the identified
   model: capacity Omega exp(d_cap) (``p[0] + d_cap``) and activity exp(d_act) on both the SCR and the NH3-oxidation
   pre-exponentials (``p[5] + d_act``, ``p[7] + d_act``, as ageing scales both in the simulator). A
@@ -40,9 +41,10 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -159,13 +161,14 @@ class AdaptiveMPC:
     ``log_every`` steps.
     """
 
-    def __init__(self, ident: dict[str, Any], quick: bool = False, forgetting: float = 0.998,
-                 box: tuple[float, float] = (0.2, 1.05), ekf_refresh: int = 20, R0: float = 1e3, Lambda0: float = 100.0, log_every: int = 20) -> None:
+    def __init__(self, ident: dict[str, Any], quick: bool = False, storage_value: float = 200.0,
+                 forgetting: float = 0.998,
+                 box: tuple[float, float] = (0.2, 1.05), free: Sequence[str] = DRIFT_NAMES, ekf_refresh: int = 20, R0: float = 1e3, Lambda0: float = 100.0, log_every: int = 20) -> None:
         from control.mpc import NonlinearMPC
         from experiments.control_benchmark import identified_mpc
         from ident.rpem.parametric import ParametricRPEM
 
-        fixed = identified_mpc(ident, quick)
+        fixed = identified_mpc(ident, quick, storage_value_g_per_mol=storage_value)
         base = fixed.model
         stage_dt = float(ident["dt"]) * fixed.stage_steps
         self.adapter = _drift_adapter_class()(base, ident, stage_dt, ekf_refresh)
@@ -175,10 +178,11 @@ class AdaptiveMPC:
                                 fallback=fixed.fallback, solver=fixed.solver, solver_options=fixed.solver_options)
         # the recursion's own box (reject an update leaving it) only guards against divergence; the model set is
         # the retention box ``box``, imposed by clipping (a projection that lets the other parameter move on)
-        nd = len(DRIFT_NAMES)
-        self.rpem = ParametricRPEM(drift_step(ident), p0=np.zeros(nd), output_indices=[2], forgetting=forgetting,
-                                   p_bounds=(np.full(nd, np.log(0.02)), np.full(nd, np.log(10.0))), R0=R0,
-                                   Lambda0=Lambda0)
+        nd, idx = len(DRIFT_NAMES), [DRIFT_NAMES.index(f) for f in free]
+        self.rpem = ParametricRPEM(drift_step(ident), p0=np.zeros(nd), free=idx, output_indices=[2],
+                                   forgetting=forgetting, p_bounds=(np.full(len(idx), np.log(0.02)),
+                                                                    np.full(len(idx), np.log(10.0))),
+                                   R0=R0, Lambda0=Lambda0)
         self._lo, self._hi = np.log(box[0]), np.log(box[1])
         self.n_cells = int(ident["n_cells"])
         self.log_every = int(log_every)
@@ -258,7 +262,7 @@ def _segment(cycle: str, seconds: float) -> Any:
     from scr_env.envs.urea_scr import UreaSCREnv
 
     tr = UreaSCREnv(cycle=cycle).unwrapped._fixed_trace
-    n = min(int(round(seconds / tr.dt)), tr.n_steps)
+    n = min(round(seconds / tr.dt), tr.n_steps)
     changes = {}
     for f in dataclasses.fields(tr):
         v = getattr(tr, f.name)
@@ -278,12 +282,12 @@ def _row(res: Any) -> dict[str, float]:
 
 
 def run_fixed(ident: dict[str, Any], items: list[dict[str, Any]], quick: bool, end: tuple[float, float],
-              seconds: float | None) -> list[dict[str, float]]:
+              seconds: float | None, storage_value: float = 200.0) -> list[dict[str, float]]:
     """The fixed-model MPC on every cycle of the sequence (each a fresh episode on the aged catalyst)."""
     from control.evaluation import run_episode
     from experiments.control_benchmark import identified_mpc
 
-    mpc = identified_mpc(ident, quick)
+    mpc = identified_mpc(ident, quick, storage_value_g_per_mol=storage_value)
     rows = []
     for it in items:
         t0 = time.perf_counter()
@@ -422,11 +426,11 @@ def run(ident: dict[str, Any], items: list[dict[str, Any]], quick: bool, end: tu
     """Both controllers over the sequence; the JSON document (without the run folder) and the RPEM history."""
     if parallel:
         with ProcessPoolExecutor(max_workers=1) as ex:
-            fut = ex.submit(_fixed_job, (ident, items, quick, end, seconds))
+            fut = ex.submit(_fixed_job, (ident, items, quick, end, seconds, kw.get("storage_value", 200.0)))
             ad_rows, est, hist = run_adaptive(ident, items, quick, end, seconds, **kw)
             fx_rows = fut.result()
     else:
-        fx_rows = run_fixed(ident, items, quick, end, seconds)
+        fx_rows = run_fixed(ident, items, quick, end, seconds, kw.get("storage_value", 200.0))
         ad_rows, est, hist = run_adaptive(ident, items, quick, end, seconds, **kw)
     cycles = []
     for it, f, a, e in zip(items, fx_rows, ad_rows, est):
@@ -457,14 +461,18 @@ def run(ident: dict[str, Any], items: list[dict[str, Any]], quick: bool, end: tu
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", type=Path, default=None, help="also write the JSON result here")
-    ap.add_argument("--quick", action="store_true", help="3 cycles of WHTC segments, shorter MPC horizon")
-    ap.add_argument("--cycles", type=int, default=None, help="cycles in the sequence (default 6; --quick 3)")
+    ap.add_argument("--quick", action="store_true", help="2 cycles of 300 s WHTC segments, shorter MPC horizon")
+    ap.add_argument("--cycles", type=int, default=None, help="cycles in the sequence (default 4; --quick 2)")
     ap.add_argument("--cycle", default="whtc", choices=("whtc", "whsc", "alternate"), help="cycle type")
-    ap.add_argument("--quick-seconds", type=float, default=600.0, help="segment length with --quick [s]")
-    ap.add_argument("--seconds", type=float, default=None, help="use the first SECONDS of each cycle")
+    ap.add_argument("--seconds", type=float, default=None,
+                    help="use the first SECONDS of each cycle (default 600; --quick 300; 0: whole cycles)")
+    ap.add_argument("--storage-value", type=float, default=200.0,
+                    help="identified_mpc(storage_value_g_per_mol=...): terminal value of stored NH3 [g/mol]")
     ap.add_argument("--end-storage-retention", type=float, default=AGED_END[0])
     ap.add_argument("--end-activity-retention", type=float, default=AGED_END[1])
     ap.add_argument("--forgetting", type=float, default=0.998, help="RPEM forgetting factor (per 0.5 s step)")
+    ap.add_argument("--free", nargs="+", default=list(DRIFT_NAMES), choices=DRIFT_NAMES,
+                    help="drift parameters the RPEM estimates (the others stay at the fresh model)")
     ap.add_argument("--box", type=float, nargs=2, default=(0.2, 1.05),
                     help="retention box of the estimates (ageing only removes capacity and activity)")
     ap.add_argument("--ident", type=Path, default=None,
@@ -472,8 +480,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                          "control_benchmark JSON) instead of identifying")
     ap.add_argument("--serial", action="store_true", help="run the fixed controller in this process too")
     args = ap.parse_args(argv)
-    n = args.cycles or (3 if args.quick else 6)
-    seconds = args.seconds if args.seconds is not None else (args.quick_seconds if args.quick else None)
+    n = args.cycles or (2 if args.quick else 4)
+    seconds = args.seconds if args.seconds is not None else (300.0 if args.quick else 600.0)
+    seconds = None if seconds <= 0 else seconds
     end = (float(args.end_storage_retention), float(args.end_activity_retention))
     out = run_folder("adaptive_ageing")
     t_start = time.perf_counter()
@@ -491,14 +500,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print(f"sequence: {n} x {args.cycle}{'' if seconds is None else f' (first {seconds:.0f} s)'}, severity 0 -> 1, "
           f"end of life: storage x{end[0]:.2f}, activity x{end[1]:.2f}", flush=True)
     doc, hist = run(ident, items, args.quick, end, seconds, parallel=not args.serial, forgetting=args.forgetting,
-                    box=tuple(args.box))
+                    box=tuple(args.box), free=tuple(args.free), storage_value=args.storage_value)
     doc.update({"identified_model": ident, "run_folder": str(out), "quick": bool(args.quick),
-                "scenario": {"n_cycles": n, "cycle": args.cycle, "seconds": seconds, "end_retention": list(end),
+                "scenario": {"storage_value_g_per_mol": args.storage_value, "n_cycles": n, "cycle": args.cycle,
+                             "seconds": seconds, "end_retention": list(end),
                              "ageing_route": "UreaSCREnv(ageing=severity)" if end == AGED_END else
                              "CatalystParams().replace(storage_retention, activity_retention) as catalyst="},
                 "estimator": {"method": "ParametricRPEM", "free": ["log capacity retention (p[0])",
                                                                    "log activity retention (p[5] and p[7])"],
-                              "forgetting": args.forgetting, "retention_box": list(args.box), "measured": "tailpipe NOx sensor (obs[3])",
+                              "forgetting": args.forgetting, "retention_box": list(args.box),
+                              "estimated": list(args.free), "measured": "tailpipe NOx sensor (obs[3])",
                               "model_update": "every step (drift as NLP parameters; EKF model every 20 steps)"},
                 "history_every_s": 10.0})
     doc["wall_time_s"] = time.perf_counter() - t_start
