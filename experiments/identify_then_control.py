@@ -226,6 +226,7 @@ def _plots(results: list[dict[str, Any]], out: Path) -> list[Path]:
         ax[1].set_yscale("symlog", linthresh=10)
         ax[1].legend(fontsize=7, loc="upper right")
         ax[2].set_ylabel("NH3 slip [ppm]")
+        ax[2].set_yscale("symlog", linthresh=10)
         ax[3].set_ylabel("AdBlue [g/s]")
         ax[3].set_xlabel("time [s]")
         fig.suptitle(f"identify-then-control: closed loop on the held-out {cycle}")
