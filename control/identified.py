@@ -148,6 +148,18 @@ class StorageGreyBox:
         m.sensor_gains_ = np.asarray(sensor_gains, dtype=np.float64)
         return m
 
+    def desorption_ppm(self, theta: ca.SX, t_k: ca.SX, flow_mol_s: float) -> ca.SX:
+        """NH3 [ppm] that a cell at coverage ``theta`` and solid temperature ``t_k`` desorbs into NH3- and NOx-free
+        gas at ``flow_mol_s`` (the identified model's gas balance with no inlet NH3; symbolic or numeric)."""
+        nom, p, n = _NOMINAL, self.params_, int(self.n_cells)
+        omega = nom["omega_mol"] * np.exp(p[0])
+        e_des = nom["e_des"] * (1 + p[3])
+        eg = nom["gamma"] * np.exp(p[4]) * e_des / (R_GAS * t_k)
+        k_ads = nom["a_ads"] * np.exp(p[1]) * 101325.0 / (R_GAS * t_k)
+        k_des = nom["a_des"] * np.exp(p[2]) * ca.exp(-e_des / (R_GAS * t_k))
+        q = max(float(flow_mol_s), 1e-3) * n / omega
+        return 1e6 * k_des * ca.exp(eg * theta) * theta / (q + k_ads * (1 - theta))
+
     # --- the DynamicModel protocol -----------------------------------------------------------------------------
     def to_casadi(self) -> ca.Function:
         """``Function('step', [x, u], [x_next, y])``, y = [tailpipe NOx ppm, NH3 ppm, sensor ppm] (physical units)."""

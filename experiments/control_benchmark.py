@@ -27,14 +27,18 @@ CORE = ("lookup_table", "pi", "mpc_identified", "mpc_oracle")
 RL_NAMES = ("ppo", "sac")
 IDENT_SEEDS = (1, 2)  # random cycles of the identification experiments (never the benchmark cycles)
 #: the identified-model MPC's NLP is small: SQP with CasADi's qrqp meets the 20 ms target where IPOPT's
-#: per-iteration overhead does not
+#: per-iteration overhead does not. No dual warm start (NonlinearMPC's default for non-IPOPT solvers: stale
+#: multipliers made the exact-Hessian QPs indefinite, qrqp pivoted for long and produced NaN steps -- the WHSC
+#: stall); the QP iterations are capped so one hard QP cannot stall an episode
 IDENT_SOLVER: dict[str, Any] = {"solver": "sqpmethod", "solver_options": {
-    "qpsol": "qrqp", "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False},
+    "qpsol": "qrqp", "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False,
+                                       "max_iter": 100},
     "print_iteration": False, "print_header": False, "print_status": False, "max_iter": 20, "error_on_fail": False}}
 REPORT_KEYS = ("nox_conversion", "engine_out_nox_g_per_kwh", "tailpipe_nox_g_per_kwh", "mean_nh3_slip_ppm",
                "peak_nh3_slip_ppm", "adblue_g", "nh3_slip_g", "engine_work_kwh", "policy_time_ms_median",
                "policy_time_ms_p95", "solver_failures", "solve_time_ms_median", "solve_time_ms_p95",
-               "solve_time_ms_max", "solver_iterations_mean", "solver_suboptimal")
+               "solve_time_ms_max", "solve_wall_ms_median", "solve_wall_ms_p95", "solver_iterations_mean",
+               "solver_suboptimal")
 
 
 def identify(seeds: tuple[int, ...] = IDENT_SEEDS) -> dict[str, Any]:
@@ -61,9 +65,16 @@ def identify(seeds: tuple[int, ...] = IDENT_SEEDS) -> dict[str, Any]:
                                          for i, n in enumerate(("tailpipe_nox", "nh3", "sensor"))}}
 
 
-def identified_mpc(ident: dict[str, Any], quick: bool = False, storage_value_g_per_mol: float = 0.0) -> Any:
+def identified_mpc(ident: dict[str, Any], quick: bool = False, storage_value_g_per_mol: float = 0.0,
+                   safe_slip_ppm: float = 20.0, margin_k: float = 30.0, flow_ref_mol_s: float = 0.5,
+                   cap_weight: float = 2.0e4) -> Any:
     """NMPC on the identified grey-box model, EKF on the tailpipe NOx sensor. ``storage_value_g_per_mol`` > 0 adds
-    the oracle's terminal value of stored NH3 on the identified storage state (off by default: not yet evaluated)."""
+    the oracle's terminal value of stored NH3 on the identified storage state, with the oracle's safe-coverage
+    penalty learned from the identified model: ``cap_weight`` per (excess)^2 of each cell's identified desorption
+    slip above ``safe_slip_ppm`` at its terminal temperature plus ``margin_k`` (no preview: a heat-up margin
+    instead) and the reference flow ``flow_ref_mol_s``."""
+    import casadi as ca
+
     from control.identified import StorageGreyBox
     from control.models import IdentifiedModelAdapter
     from control.mpc import NonlinearMPC
@@ -78,7 +89,9 @@ def identified_mpc(ident: dict[str, Any], quick: bool = False, storage_value_g_p
         initial_state=lambda obs: np.r_[np.zeros(n), obs[1]], model_dt=ident["dt"],
         # the grey-box parameters are continuous-time: the same model discretised at the 2 s stage length
         stage_model=StorageGreyBox.from_params(ident["params"], ident["sensor_gains"], n, ident["dt"] * 4),
-        terminal_cost=lambda x: -storage_value_g_per_mol * sites_per_cell * sum(x[j] for j in range(n)))
+        terminal_cost=lambda x: sum(-storage_value_g_per_mol * sites_per_cell * x[j] + (cap_weight * ca.fmax(
+            m.desorption_ppm(x[j], x[n] + margin_k, flow_ref_mol_s) / safe_slip_ppm - 1.0, 0.0) ** 2
+            if storage_value_g_per_mol > 0 else 0.0) for j in range(n)))
     return NonlinearMPC(adapter, horizon=10 if quick else 20, stage_steps=4, preview=False, **IDENT_SOLVER)
 
 
