@@ -115,6 +115,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="train on the environment's default reward weights instead of TRAIN_REWARD_WEIGHTS")
     p.add_argument("--reward-weights", type=float, nargs=3, metavar=("NOX", "NH3", "ADBLUE"), default=None,
                    help="training reward weights [g AdBlue equivalent per g] (default TRAIN_REWARD_WEIGHTS)")
+    p.add_argument("--hp", type=json.loads, default=None,
+                   help="JSON dict of overrides of control.rl.training.HYPERPARAMETERS[algo]['kwargs']")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--no-select", action="store_true",
                    help="ship the final policy instead of the checkpoint selected on the validation cycles")
@@ -210,7 +212,7 @@ def main(argv: list[str] | None = None) -> dict:
                 else "UreaSCRVectorEnv, random cycles (1800 s, pool of 32 per seed), random start offsets"}
         result = train(args.algo, args.timesteps, seed=args.seed, num_envs=args.num_envs, out=out, pipeline=pipeline,
                        env_kwargs=env_kwargs, progress_bar=not args.no_progress,
-                       checkpoint_every=args.checkpoint_every, venv=venv, metadata=meta)
+                       checkpoint_every=args.checkpoint_every, venv=venv, metadata=meta, hyperparameters=args.hp)
         if args.surrogate:
             result.metadata["observation_names"] = list(surrogate_info["observation_names"])
             result.metadata["env_kwargs"] = surrogate_info["env_kwargs"]
@@ -233,7 +235,9 @@ def main(argv: list[str] | None = None) -> dict:
         "command": command if args.select_from is None else json.loads(final_json.read_text())["command"],
         "selection_command": command if args.select_from is not None else None,
         "training_wall_time_s": round(wall, 1), "training_timesteps": timesteps,
-        "wall_time_s": round(wall, 1), "selection": selection or None})
+        # wall time to reach the shipped policy: the checkpoint's own if it recorded one, else the whole run's
+        "wall_time_s": round(float(json.loads(chosen.read_text()).get("wall_time_s", wall)), 1),
+        "selection": selection or None})
     policy = load_policy(json_path)
     cycles = ("whtc", "whsc")
     seeds = tuple(args.eval_seeds)

@@ -5,7 +5,8 @@ The training stack, innermost first::
     UreaSCRVectorEnv (cycle="random", random_offsets=True)   one compiled call steps all plants
     -> GymVectorToSB3            SAME_STEP autoreset -> SB3 terminal_observation, TimeLimit.truncated
     -> VecMonitor                episode returns and lengths for the logs
-    -> PipelineVecEnv            features + history (control.rl.pipeline), shipped with the policy
+    -> PipelineVecEnv            features + history (control.rl.pipeline), shipped with the policy; with
+                                 PipelineConfig(action="anr") it also maps the policy's ANR to the AdBlue rate
     -> VecNormalize              observation and reward normalisation; observation statistics shipped as NPZ
 
 Hyperparameters (:data:`HYPERPARAMETERS`) [chosen, not tuned beyond a couple of runs]: the discount reflects the
