@@ -33,6 +33,7 @@ _CP_MOL = 0.0289 * 1250.0  # J/(mol K) exhaust
 _NOMINAL = {"omega_mol": 8.0, "a_ads": 3.0e4, "a_des": 3.0e8, "e_des": 95e3, "gamma": 0.9, "a_scr": 2.0e8,
             "e_scr": 65e3, "a_ox": 1.0e6, "e_ox": 110e3, "heat_j_k": 5.0e4, "t50_k": 450.0}
 N_PARAMS = 11
+_T_MIN_K = 200.0  # lower end of the temperatures the model is evaluated at (guards 1/T; far below any exhaust)
 
 
 class StorageGreyBox:
@@ -63,8 +64,11 @@ class StorageGreyBox:
         t50 = nom["t50_k"] + 10.0 * p[9]
         e_ox = nom["e_ox"] * (1 + p[10])
         nox_ppm, urea_g_min, t_in, flow = u[0], u[1], u[2], ca.fmax(u[3], 1e-3)
-        t_old = x[n]
-        t = (heat * t_old + dt * flow * _CP_MOL * t_in) / (heat + dt * flow * _CP_MOL)
+        # the state enters clipped to its physical range: identical on it (identification never leaves it), but an
+        # NLP iterate outside the box (an SQP step from an unsolved QP) must not reach the pole of the gas balance
+        # at theta > 1 or 1 / T at T <= 0, whose NaN derivatives stop the solver ("NaN detected for grad_f_x")
+        t_old = ca.fmax(x[n], _T_MIN_K)
+        t = (heat * t_old + dt * flow * _CP_MOL * ca.fmax(t_in, _T_MIN_K)) / (heat + dt * flow * _CP_MOL)
         c_tot = 101325.0 / (R_GAS * t)
         k_ads = nom["a_ads"] * ca.exp(p[1]) * c_tot
         k_des = nom["a_des"] * ca.exp(p[2]) * ca.exp(-e_des / (R_GAS * t))
@@ -85,9 +89,10 @@ class StorageGreyBox:
                 g = k_ads * yn * (1 - theta) - r_des - k_scr * theta * yx - k_ox * theta
                 return g, yn, yx
             g_th = gas(th)[0]
-            dg = ca.substitute(ca.jacobian(g_th, th), th, x[j])
-            g0 = gas(x[j])[0]
-            th_new = ca.fmin(ca.fmax(x[j] + dt * g0 / ca.fmax(1 - dt * dg, 1.0), 0.0), 1.0)
+            th0 = ca.fmin(ca.fmax(x[j], 0.0), 1.0)
+            dg = ca.substitute(ca.jacobian(g_th, th), th, th0)
+            g0 = gas(th0)[0]
+            th_new = ca.fmin(ca.fmax(th0 + dt * g0 / ca.fmax(1 - dt * dg, 1.0), 0.0), 1.0)
             xs.append(th_new)
             _, y_nh3, y_nox = gas(th_new)
         return ca.vertcat(*xs, t), ca.vertcat(y_nox * 1e6, y_nh3 * 1e6)
