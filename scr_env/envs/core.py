@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from scr_env.constants import NO2_MOLAR_MASS_G_MOL, NH3_MOLAR_MASS_G_MOL
+from scr_env.constants import NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
 from scr_env.cycles import ExhaustTrace
 from scr_env.physics import kernel as K
 
@@ -66,71 +66,59 @@ def drive_table(trace: ExhaustTrace, o2_fraction: float) -> np.ndarray:
         trace.engine_power_kw, np.full(trace.n_steps, o2_fraction)]))
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True)
+# Per plant, everything is indexed [b, j] on the (B, ...) blocks, never through row views, and compiled without
+# reference counting (see the note at kernel._NO_REFCOUNT).
+@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
 def _post_one(b, inputs, power_kw, dt, out, action_norm, weights, terms, reward, acc, obs, nh3_sensor, privileged,
               theta):
-    o = out[b]
     flow = inputs[b, K.I_FLOW]
     adblue = min(max(inputs[b, K.I_ADBLUE], 0.0), 1e9)
-    nox_tail_mol_s = (o[K.O_NO] + o[K.O_NO2]) * 1e-6 * flow
-    nh3_tail_mol_s = o[K.O_NH3] * 1e-6 * flow
+    nh3_ppm = out[b, K.O_NH3]
+    n2o_ppm = out[b, K.O_N2O]
+    nox_tail_mol_s = (out[b, K.O_NO] + out[b, K.O_NO2]) * 1e-6 * flow
+    nh3_tail_mol_s = nh3_ppm * 1e-6 * flow
     nox_g = nox_tail_mol_s * NO2_MOLAR_MASS_G_MOL * dt
     nh3_g = nh3_tail_mol_s * NH3_MOLAR_MASS_G_MOL * dt
     adblue_g = adblue * dt
-    w = weights[b]
-    terms[b, 0] = -w[0] * nox_g
-    terms[b, 1] = -w[1] * nh3_g
-    terms[b, 2] = -w[2] * adblue_g
-    reward[b] = terms[b, 0] + terms[b, 1] + terms[b, 2]
-    a = acc[b]
+    t0 = -weights[b, 0] * nox_g
+    t1 = -weights[b, 1] * nh3_g
+    t2 = -weights[b, 2] * adblue_g
+    terms[b, 0] = t0
+    terms[b, 1] = t1
+    terms[b, 2] = t2
+    reward[b] = t0 + t1 + t2
     nox_in_mol_s = inputs[b, K.I_NOX] * 1e-6 * flow
-    a[A_ENGINE_NOX_G] += nox_in_mol_s * NO2_MOLAR_MASS_G_MOL * dt
-    a[A_TAILPIPE_NOX_G] += nox_g
-    a[A_NH3_PPM_S] += o[K.O_NH3] * dt
-    a[A_NH3_PEAK_PPM] = max(a[A_NH3_PEAK_PPM], o[K.O_NH3])
-    a[A_ADBLUE_G] += adblue_g
-    a[A_TIME_S] += dt
-    a[A_WORK_KWH] += max(power_kw[b], 0.0) * dt / 3600.0
-    a[A_N_IN_MOL] += (nox_in_mol_s + o[K.O_NH3_INJ]) * dt
-    a[A_N_OUT_MOL] += (nox_tail_mol_s + nh3_tail_mol_s + 2.0 * o[K.O_N2O] * 1e-6 * flow
-                       + 2.0 * o[K.O_N2]) * dt
-    a[A_NH3_G] += nh3_g
-    a[A_N2O_G] += o[K.O_N2O] * 1e-6 * flow * 44.013 * dt  # g N2O, M = 44.013 g/mol
-    a[A_UREA_N_MOL] += o[K.O_UREA_N] * dt
-    a[A_STEPS] += 1.0
-    ob = obs[b]
-    ob[0] = min(o[K.O_UPSTREAM_NOX], 10000.0)
-    ob[1] = min(max(o[K.O_TIN_SENSOR], 0.0), 1500.0)
-    ob[2] = min(o[K.O_FLOW_EST], 100.0)
-    ob[3] = min(o[K.O_NOX_SENSOR], 10000.0)
-    ob[4] = action_norm[b]
+    acc[b, A_ENGINE_NOX_G] += nox_in_mol_s * NO2_MOLAR_MASS_G_MOL * dt
+    acc[b, A_TAILPIPE_NOX_G] += nox_g
+    acc[b, A_NH3_PPM_S] += nh3_ppm * dt
+    acc[b, A_NH3_PEAK_PPM] = max(acc[b, A_NH3_PEAK_PPM], nh3_ppm)
+    acc[b, A_ADBLUE_G] += adblue_g
+    acc[b, A_TIME_S] += dt
+    acc[b, A_WORK_KWH] += max(power_kw[b], 0.0) * dt / 3600.0
+    acc[b, A_N_IN_MOL] += (nox_in_mol_s + out[b, K.O_NH3_INJ]) * dt
+    acc[b, A_N_OUT_MOL] += (nox_tail_mol_s + nh3_tail_mol_s + 2.0 * n2o_ppm * 1e-6 * flow
+                            + 2.0 * out[b, K.O_N2]) * dt
+    acc[b, A_NH3_G] += nh3_g
+    acc[b, A_N2O_G] += n2o_ppm * 1e-6 * flow * 44.013 * dt  # g N2O, M = 44.013 g/mol
+    acc[b, A_UREA_N_MOL] += out[b, K.O_UREA_N] * dt
+    acc[b, A_STEPS] += 1.0
+    obs[b, 0] = min(out[b, K.O_UPSTREAM_NOX], 10000.0)
+    obs[b, 1] = min(max(out[b, K.O_TIN_SENSOR], 0.0), 1500.0)
+    obs[b, 2] = min(out[b, K.O_FLOW_EST], 100.0)
+    obs[b, 3] = min(out[b, K.O_NOX_SENSOR], 10000.0)
+    obs[b, 4] = action_norm[b]
     i = 5
     if nh3_sensor:
-        ob[i] = min(o[K.O_NH3_SENSOR], NH3_SENSOR_HIGH)
+        obs[b, i] = min(out[b, K.O_NH3_SENSOR], NH3_SENSOR_HIGH)
         i += 1
     if privileged:
-        th = theta[b]
-        for j in range(th.shape[0]):
-            ob[i + j] = min(max(th[j], 0.0), 1.0)
+        for j in range(theta.shape[1]):
+            obs[b, i + j] = min(max(theta[b, j], 0.0), 1.0)
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
-def _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
-    n = lay[0]
-    theta = buf[:, lay[1]:lay[1] + n]
-    temp = buf[:, lay[2]:lay[2] + n]
-    sens = buf[:, lay[3]:lay[3] + K.N_SENSOR_STATES]
-    inputs = buf[:, lay[4]:lay[4] + 6]
-    power = buf[:, lay[5]]
-    cat_p = buf[:, lay[6]:lay[6] + 25]
-    aux_p = buf[:, lay[7]:lay[7] + K.N_AUX]
-    noise = buf[:, lay[8]:lay[8] + K.N_NOISE]
-    out = buf[:, lay[9]:lay[9] + 15]
-    action_norm = buf[:, lay[10]]
-    weights = buf[:, lay[11]:lay[11] + 3]
-    terms = buf[:, lay[12]:lay[12] + 3]
-    reward = buf[:, lay[13]]
-    acc = buf[:, lay[14]:lay[14] + N_ACC]
+@numba.njit(**K._NO_REFCOUNT)
+def _one(b, theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward, acc,
+         nh3_sensor, privileged, obs, drive, row_idx, noise_tab, noise_idx, dt):
     r = row_idx[b]
     inputs[b, 0] = drive[r, D_FLOW]
     inputs[b, 1] = drive[r, D_TIN]
@@ -142,20 +130,40 @@ def _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
     for i in range(K.N_NOISE):
         noise[b, i] = noise_tab[m, i]
     K._plant_step_one(b, theta, temp, sens, inputs, dt, cat_p, aux_p, noise, out)
-    _post_one(b, inputs, power, dt, out, action_norm, weights, terms, reward, acc, obs, lay[15] != 0, lay[16] != 0,
+    _post_one(b, inputs, power, dt, out, action_norm, weights, terms, reward, acc, obs, nh3_sensor, privileged,
               theta)
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
+def _blocks(buf, lay):
+    """The column blocks of the buffer (views, made once per batch step, outside the loop over plants)."""
+    n = lay[0]
+    return (buf[:, lay[1]:lay[1] + n], buf[:, lay[2]:lay[2] + n], buf[:, lay[3]:lay[3] + K.N_SENSOR_STATES],
+            buf[:, lay[4]:lay[4] + 6], buf[:, lay[5]], buf[:, lay[6]:lay[6] + 25], buf[:, lay[7]:lay[7] + K.N_AUX],
+            buf[:, lay[8]:lay[8] + K.N_NOISE], buf[:, lay[9]:lay[9] + 15], buf[:, lay[10]],
+            buf[:, lay[11]:lay[11] + 3], buf[:, lay[12]:lay[12] + 3], buf[:, lay[13]], buf[:, lay[14]:lay[14] + N_ACC])
 
 
 @numba.njit(nogil=True, error_model="numpy", cache=True)
 def _env_step_serial(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
+    (theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward,
+     acc) = _blocks(buf, lay)
+    nh3_sensor = lay[15] != 0
+    privileged = lay[16] != 0
     for b in range(buf.shape[0]):
-        _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
+        _one(b, theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward, acc,
+             nh3_sensor, privileged, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
 @numba.njit(nogil=True, error_model="numpy", cache=True, parallel=True)
 def _env_step_parallel(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
+    (theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward,
+     acc) = _blocks(buf, lay)
+    nh3_sensor = lay[15] != 0
+    privileged = lay[16] != 0
     for b in numba.prange(buf.shape[0]):
-        _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
+        _one(b, theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward, acc,
+             nh3_sensor, privileged, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
 # column blocks of the PlantBatch buffer: (name, width or None for n_cells)
