@@ -42,7 +42,9 @@ def _compile_all(namespace: dict[str, Any], wrap: Callable[[Callable], Callable]
 # "__name__" lets numba's on-disk cache re-import the namespace of the rebound functions.
 _NUMBA_NS: dict[str, Any] = {"__name__": __name__, "exp": math.exp, "log": math.log, "sqrt": math.sqrt,
                              "select": _select_scalar, "abs": abs}
-_JIT = dict(nogil=True, fastmath=False, error_model="numpy", cache=True)
+# inline="always": numba does not inline across its compiled functions by itself, and a call of cell_balance per
+# Newton iteration (13 doubles in, an 11-tuple out through memory) cost about a seventh of the plant step.
+_JIT = {"nogil": True, "fastmath": False, "error_model": "numpy", "cache": True, "inline": "always"}
 _NB = _compile_all(_NUMBA_NS, numba.njit(**_JIT))
 
 #: numba versions (scalar arguments), used by the compiled plant kernel

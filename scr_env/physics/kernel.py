@@ -105,7 +105,7 @@ def pack_aux(dosing: DosingParams, sensors: SensorParams) -> np.ndarray:
     return np.array([values[k] for k in AUX_FIELDS], dtype=np.float64)
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True)
+@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
 def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast,
                    k_no2, k_ox, k_ox_no, k_n2o):
     """Root in [0, 1] of R(theta) = (theta - theta_old) inv_dt - g(theta), and :func:`cell_balance` there.
@@ -117,9 +117,15 @@ def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_d
     hi = 1.0
     th = min(max(theta_old, 0.0), 1.0)
     inflow = q * (y_nh3_in + y_no_in + y_no2_in) + theta_old * inv_dt  # N fed to the cell per site [1/s]
-    for _ in range(_NEWTON_MAX_IT):
+    # One call site of cell_balance (so the compiler inlines it): a bracket collapse or the iteration limit marks
+    # th as final, and the next pass only evaluates there.
+    final = False
+    it = 0
+    while True:
         r = cell_balance_nb(th, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2,
                             k_ox, k_ox_no, k_n2o)
+        if final:
+            return th, r
         res = (th - theta_old) * inv_dt - r[0]
         d_res = inv_dt - r[1]
         # converged when the residual flux is negligible against the N fluxes of the cell (fed, stored, and
@@ -135,11 +141,11 @@ def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_d
             new = 0.5 * (lo + hi)
         if hi - lo <= _BRACKET_TOL * hi:
             new = 0.5 * (lo + hi)
-            return new, cell_balance_nb(new, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std,
-                                        k_fast, k_no2, k_ox, k_ox_no, k_n2o)
+            final = True
+        it += 1
+        if it == _NEWTON_MAX_IT:
+            final = True
         th = new
-    return th, cell_balance_nb(th, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2,
-                               k_ox, k_ox_no, k_n2o)
 
 
 # The per-plant code indexes the (B, ...) arrays with [b, j] instead of taking row views, and is compiled without
