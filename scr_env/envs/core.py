@@ -116,9 +116,21 @@ def _post_one(b, inputs, power_kw, dt, out, action_norm, weights, terms, reward,
             obs[b, i + j] = min(max(theta[b, j], 0.0), 1.0)
 
 
+@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
+def _blocks(buf, lay):
+    """The column blocks of the buffer, as (B, width) views (free without reference counting)."""
+    n = lay[0]
+    return (buf[:, lay[1]:lay[1] + n], buf[:, lay[2]:lay[2] + n], buf[:, lay[3]:lay[3] + K.N_SENSOR_STATES],
+            buf[:, lay[4]:lay[4] + 6], buf[:, lay[5]], buf[:, lay[6]:lay[6] + 25], buf[:, lay[7]:lay[7] + K.N_AUX],
+            buf[:, lay[8]:lay[8] + K.N_NOISE], buf[:, lay[9]:lay[9] + 15], buf[:, lay[10]],
+            buf[:, lay[11]:lay[11] + 3], buf[:, lay[12]:lay[12] + 3], buf[:, lay[13]], buf[:, lay[14]:lay[14] + N_ACC])
+
+
 @numba.njit(**K._NO_REFCOUNT)
-def _one(b, theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward, acc,
-         nh3_sensor, privileged, obs, drive, row_idx, noise_tab, noise_idx, dt):
+def _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
+    # few arguments on purpose: each array argument is a 7-word struct passed on the stack
+    (theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward,
+     acc) = _blocks(buf, lay)
     r = row_idx[b]
     inputs[b, 0] = drive[r, D_FLOW]
     inputs[b, 1] = drive[r, D_TIN]
@@ -130,40 +142,20 @@ def _one(b, theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_n
     for i in range(K.N_NOISE):
         noise[b, i] = noise_tab[m, i]
     K._plant_step_one(b, theta, temp, sens, inputs, dt, cat_p, aux_p, noise, out)
-    _post_one(b, inputs, power, dt, out, action_norm, weights, terms, reward, acc, obs, nh3_sensor, privileged,
+    _post_one(b, inputs, power, dt, out, action_norm, weights, terms, reward, acc, obs, lay[15] != 0, lay[16] != 0,
               theta)
-
-
-@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
-def _blocks(buf, lay):
-    """The column blocks of the buffer (views, made once per batch step, outside the loop over plants)."""
-    n = lay[0]
-    return (buf[:, lay[1]:lay[1] + n], buf[:, lay[2]:lay[2] + n], buf[:, lay[3]:lay[3] + K.N_SENSOR_STATES],
-            buf[:, lay[4]:lay[4] + 6], buf[:, lay[5]], buf[:, lay[6]:lay[6] + 25], buf[:, lay[7]:lay[7] + K.N_AUX],
-            buf[:, lay[8]:lay[8] + K.N_NOISE], buf[:, lay[9]:lay[9] + 15], buf[:, lay[10]],
-            buf[:, lay[11]:lay[11] + 3], buf[:, lay[12]:lay[12] + 3], buf[:, lay[13]], buf[:, lay[14]:lay[14] + N_ACC])
 
 
 @numba.njit(nogil=True, error_model="numpy", cache=True)
 def _env_step_serial(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
-    (theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward,
-     acc) = _blocks(buf, lay)
-    nh3_sensor = lay[15] != 0
-    privileged = lay[16] != 0
     for b in range(buf.shape[0]):
-        _one(b, theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward, acc,
-             nh3_sensor, privileged, obs, drive, row_idx, noise_tab, noise_idx, dt)
+        _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
 @numba.njit(nogil=True, error_model="numpy", cache=True, parallel=True)
 def _env_step_parallel(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
-    (theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward,
-     acc) = _blocks(buf, lay)
-    nh3_sensor = lay[15] != 0
-    privileged = lay[16] != 0
     for b in numba.prange(buf.shape[0]):
-        _one(b, theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward, acc,
-             nh3_sensor, privileged, obs, drive, row_idx, noise_tab, noise_idx, dt)
+        _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
 # column blocks of the PlantBatch buffer: (name, width or None for n_cells)

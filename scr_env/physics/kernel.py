@@ -192,7 +192,7 @@ def catalyst_chemistry(theta, temperature_k, q, y_nh3_in, y_no_in, y_no2_in, o2_
                           o2_fraction, inv_dt, p[np.newaxis, :])
 
 
-@numba.njit(**_NO_REFCOUNT)
+@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
 def _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     n = theta.shape[1]
     sites = cat_params[b, 1]
@@ -268,16 +268,21 @@ def _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_param
     out[b, O_FLOW_EST] = max(flow * (1.0 + aux_params[b, 10] * noise[b, 4]), 0.0)
 
 
+@numba.njit(**_NO_REFCOUNT)
+def _plant_step_b(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
+    _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
+
+
 @numba.njit(nogil=True, error_model="numpy", cache=True)
 def _plant_step_serial(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     for b in range(theta.shape[0]):
-        _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
+        _plant_step_b(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
 
 
 @numba.njit(nogil=True, error_model="numpy", parallel=True, cache=True)
 def _plant_step_parallel(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     for b in numba.prange(theta.shape[0]):
-        _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
+        _plant_step_b(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
 
 
 PARALLEL_MIN_BATCH = 64  # below this, thread start-up costs more than it saves
