@@ -158,6 +158,58 @@ def _env_step_parallel(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
         _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
+# The vector environment's per-step bookkeeping, compiled: numpy would make a dozen temporaries of B elements.
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def apply_actions(actions, normalized, max_rate_g_s, buf, col_adblue, col_action, rate_out):
+    """Clip a batch of actions (shape (B,)) and write the AdBlue rate [g/s] (to the buffer column ``col_adblue`` and
+    ``rate_out``) and the normalised action (to ``col_action``). Returns the number of non-finite actions; if there
+    are any, nothing is written."""
+    n = actions.shape[0]
+    bad = 0
+    for i in range(n):
+        if not math.isfinite(actions[i]):
+            bad += 1
+    if bad > 0:
+        return bad
+    for i in range(n):
+        v = float(actions[i])
+        if normalized:
+            norm = min(max(v, -1.0), 1.0)
+            rate = 0.5 * (norm + 1.0) * max_rate_g_s
+        else:
+            rate = min(max(v, 0.0), max_rate_g_s)
+            norm = 2.0 * rate / max_rate_g_s - 1.0
+        buf[i, col_adblue] = rate
+        buf[i, col_action] = norm
+        rate_out[i] = rate
+    return 0
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def vector_outputs(buf, lay, k, length, info, step_index, truncated):
+    """After a step: advance the step counters ``k``, set ``truncated`` (k >= length) and ``step_index`` (= k), and
+    fill ``info`` rows 0-5 with nox, nh3 and adblue cost, tailpipe NOx and NH3 [ppm] and the reward. Returns whether
+    any plant's cycle ended."""
+    out = buf[:, lay[9]:lay[9] + 15]
+    terms = buf[:, lay[12]:lay[12] + 3]
+    reward = buf[:, lay[13]]
+    ended = False
+    for b in range(buf.shape[0]):
+        kb = k[b] + 1
+        k[b] = kb
+        step_index[b] = kb
+        t = kb >= length[b]
+        truncated[b] = t
+        ended |= t
+        info[0, b] = terms[b, 0]
+        info[1, b] = terms[b, 1]
+        info[2, b] = terms[b, 2]
+        info[3, b] = out[b, K.O_NO] + out[b, K.O_NO2]
+        info[4, b] = out[b, K.O_NH3]
+        info[5, b] = reward[b]
+    return ended
+
+
 # column blocks of the PlantBatch buffer: (name, width or None for n_cells)
 _BLOCKS = (("theta", None), ("temperature_k", None), ("sensor_state", K.N_SENSOR_STATES),
            ("inputs", len(K.INPUT_FIELDS)), ("power_kw", 1), ("cat_params", 25), ("aux_params", K.N_AUX),

@@ -1,7 +1,7 @@
 """The native vector environment: N catalysts stepped by one call of the compiled physics."""
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -184,61 +184,62 @@ class UreaSCRVectorEnv(VectorEnv):
         names = np.array([self._traces[t].name for t in self._env_trace], dtype=object)
         return self._batch.obs.copy(), {"cycle": names, "_cycle": self._ones.copy()}
 
-    def _actions(self, actions: Any) -> tuple[np.ndarray, np.ndarray]:
-        a = np.asarray(actions, dtype=np.float64)
+    def _actions(self, actions: Any) -> np.ndarray:
+        """Validate ``actions`` and write them to the batch; returns the (7, num_envs) info block, whose row 6 holds
+        the AdBlue rates [g/s]."""
+        a = np.asarray(actions)
+        if a.dtype != np.float32 and a.dtype != np.float64:
+            a = np.asarray(actions, dtype=np.float64)
         if a.shape not in ((self.num_envs, 1), (self.num_envs,)):
             raise ValueError(f"actions must have shape ({self.num_envs}, 1), got {a.shape}")
         a = a.reshape(self.num_envs)
-        if not np.all(np.isfinite(a)):
+        info = np.empty((7, self.num_envs))
+        b = self._batch
+        if core.apply_actions(a, self.config.action_mode == "normalized", self.max_rate_g_s, b.buf, b.col_adblue,
+                              b.col_action, info[6]):
             raise ValueError(f"actions must be finite; NaN or inf at envs {np.flatnonzero(~np.isfinite(a))[:10]}")
-        if self.config.action_mode == "normalized":
-            norm = np.clip(a, -1.0, 1.0)
-            rate = 0.5 * (norm + 1.0) * self.max_rate_g_s
-        else:
-            rate = np.clip(a, 0.0, self.max_rate_g_s)
-            norm = 2.0 * rate / self.max_rate_g_s - 1.0
-        return rate, norm
+        return info
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         if self._needs_reset:
             raise RuntimeError("call reset() before step()")
-        rate, norm = self._actions(actions)
+        info = self._actions(actions)
         b = self._batch
-        b.inputs[:, K.I_ADBLUE] = rate
-        b.action_norm[:] = norm
         np.add(self._base, self._k, out=self._row)
         self.np_random.standard_normal(out=self._noise)
         b.step(self.dt, self._flat, self._row, self._noise, self._noise_idx)
-        self._k += 1
-        truncated = self._k >= self._len
-        terminated = np.zeros(self.num_envs, dtype=bool)
-        out = b.out
+        n = self.num_envs
+        step_index = np.empty(n, dtype=np.int64)
+        truncated = np.empty(n, dtype=bool)
+        ended = core.vector_outputs(b.buf, b.layout, self._k, self._len, info, step_index, truncated)
+        terminated = np.zeros(n, dtype=bool)
         ones = self._ones
         infos: dict[str, Any] = {
-            "nox_cost": b.terms[:, 0].copy(), "_nox_cost": ones,
-            "nh3_cost": b.terms[:, 1].copy(), "_nh3_cost": ones,
-            "adblue_cost": b.terms[:, 2].copy(), "_adblue_cost": ones,
-            "tailpipe_nox_ppm": out[:, K.O_NO] + out[:, K.O_NO2], "_tailpipe_nox_ppm": ones,
-            "tailpipe_nh3_ppm": out[:, K.O_NH3].copy(), "_tailpipe_nh3_ppm": ones,
-            "adblue_g_s": rate, "_adblue_g_s": ones,
-            "step_index": self._k.copy(), "_step_index": ones,
+            "nox_cost": info[0], "_nox_cost": ones,
+            "nh3_cost": info[1], "_nh3_cost": ones,
+            "adblue_cost": info[2], "_adblue_cost": ones,
+            "tailpipe_nox_ppm": info[3], "_tailpipe_nox_ppm": ones,
+            "tailpipe_nh3_ppm": info[4], "_tailpipe_nh3_ppm": ones,
+            "adblue_g_s": info[6], "_adblue_g_s": ones,
+            "step_index": step_index, "_step_index": ones,
         }
-        rewards = b.reward.copy()
-        if truncated.any():
-            ended = np.flatnonzero(truncated)
-            final_obs = np.full(self.num_envs, None, dtype=object)
+        rewards = info[5]
+        if ended:
+            out = b.out
+            ended_idx = np.flatnonzero(truncated)
+            final_obs = np.full(n, None, dtype=object)
             final_info: dict[str, Any] = {}
-            for i in ended:
+            for i in ended_idx:
                 final_obs[i] = b.obs[i].copy()
                 kpis = core.episode_kpis(b.acc[i], float(out[i, K.O_STORED]))
                 final_info = self._add_info(final_info, {"episode_kpis": kpis}, int(i))
-            mask = np.zeros(self.num_envs, dtype=bool)
-            mask[ended] = True
+            mask = np.zeros(n, dtype=bool)
+            mask[ended_idx] = True
             infos["final_obs"] = final_obs
             infos["_final_obs"] = mask
             infos["final_info"] = final_info
             infos["_final_info"] = mask
-            self._reset_envs(ended, {})
+            self._reset_envs(ended_idx, {})
         return b.obs.copy(), rewards, terminated, truncated, infos
 
     @property
