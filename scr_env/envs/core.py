@@ -159,6 +159,16 @@ def _env_step_parallel(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
         _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
+@numba.njit(nogil=True, cache=True)
+def standard_normal_fill(rng, out):
+    """``rng.standard_normal(out=out)`` for a C-contiguous ``out``, in compiled code: numba implements numpy's
+    ziggurat on the same bit generator, so the values and the generator state afterwards are numpy's (checked by a
+    test), at about 60 % of numpy's time (40 vs 65 us for 1024 x 5 draws)."""
+    flat = out.reshape(-1)
+    for i in range(flat.size):
+        flat[i] = rng.standard_normal()
+
+
 # The vector environment's per-step bookkeeping, compiled: numpy would make a dozen temporaries of B elements.
 @numba.njit(nogil=True, error_model="numpy", cache=True)
 def apply_actions(actions, normalized, max_rate_g_s, buf, col_adblue, col_action, rate_out):

@@ -206,7 +206,7 @@ class UreaSCRVectorEnv(VectorEnv):
         info = self._actions(actions)
         b = self._batch
         np.add(self._base, self._k, out=self._row)
-        self.np_random.standard_normal(out=self._noise)
+        core.standard_normal_fill(self.np_random, self._noise)
         b.step(self.dt, self._flat, self._row, self._noise, self._noise_idx)
         n = self.num_envs
         step_index = np.empty(n, dtype=np.int64)
