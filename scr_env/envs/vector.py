@@ -228,13 +228,19 @@ class UreaSCRVectorEnv(VectorEnv):
             out = b.out
             ended_idx = np.flatnonzero(truncated)
             final_obs = np.full(n, None, dtype=object)
-            final_info: dict[str, Any] = {}
             for i in ended_idx:
                 final_obs[i] = b.obs[i].copy()
-                kpis = core.episode_kpis(b.acc[i], float(out[i, K.O_STORED]))
-                final_info = self._add_info(final_info, {"episode_kpis": kpis}, int(i))
             mask = np.zeros(n, dtype=bool)
             mask[ended_idx] = True
+            # what VectorEnv._add_info builds from {"episode_kpis": kpis} env by env, built at once
+            kpis = [core.episode_kpis(b.acc[i], float(out[i, K.O_STORED])) for i in ended_idx]
+            per_key: dict[str, Any] = {}
+            for key, value in kpis[0].items():
+                values = np.zeros(n, dtype=type(value))
+                values[ended_idx] = [k[key] for k in kpis]
+                per_key[key] = values
+                per_key[f"_{key}"] = mask.copy()
+            final_info = {"episode_kpis": per_key, "_episode_kpis": mask.copy()}
             infos["final_obs"] = final_obs
             infos["_final_obs"] = mask
             infos["final_info"] = final_info
