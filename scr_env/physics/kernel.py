@@ -165,7 +165,13 @@ def _chemistry_row(theta, temperature_k, b, q, y_nh3_in, y_no_in, y_no2_in, o2_f
     y_no2 = y_no2_in
     y_n2o = 0.0
     n2_per_site = 0.0
-    f_std, f_ox = o2_factors_nb(o2_fraction, p[b, 22], p[b, 23], p[b, 24])
+    if o2_fraction == p[b, 22] and 0.0 < o2_fraction < math.inf:
+        # O2 at the lab reference (the environments' O2_FRACTION): o2_factors gives exactly 1, 1 (log(1) = 0,
+        # exp(0) = 1); skipping its log and two exps saves ~5 % of the transcendental calls of a plant step
+        f_std = 1.0
+        f_ox = 1.0
+    else:
+        f_std, f_ox = o2_factors_nb(o2_fraction, p[b, 22], p[b, 23], p[b, 24])
     for j in range(n):
         k_ads, k_des, e_dg, k_std, k_fast, k_no2, k_ox, k_ox_no, k_n2o = arrhenius_constants_nb(
             temperature_k[b, j], f_std, f_ox, p[b, 6], p[b, 7], p[b, 8], p[b, 9], p[b, 10], p[b, 11], p[b, 12],
