@@ -232,15 +232,19 @@ class UreaSCRVectorEnv(VectorEnv):
                 final_obs[i] = b.obs[i].copy()
             mask = np.zeros(n, dtype=bool)
             mask[ended_idx] = True
-            # what VectorEnv._add_info builds from {"episode_kpis": kpis} env by env, built at once
+            # what VectorEnv._add_info builds from {"episode_kpis": kpis} env by env (the KPIs are floats: float64
+            # arrays, each key with its own mask), built at once as rows of two arrays
             kpis = [core.episode_kpis(b.acc[i], float(out[i, K.O_STORED])) for i in ended_idx]
+            keys = list(kpis[0])
+            values = np.zeros((len(keys), n))
+            values[:, ended_idx] = np.array([[k[key] for k in kpis] for key in keys])
+            masks = np.zeros((len(keys) + 1, n), dtype=bool)
+            masks[:, ended_idx] = True
             per_key: dict[str, Any] = {}
-            for key, value in kpis[0].items():
-                values = np.zeros(n, dtype=type(value))
-                values[ended_idx] = [k[key] for k in kpis]
-                per_key[key] = values
-                per_key[f"_{key}"] = mask.copy()
-            final_info = {"episode_kpis": per_key, "_episode_kpis": mask.copy()}
+            for j, key in enumerate(keys):
+                per_key[key] = values[j]
+                per_key[f"_{key}"] = masks[j]
+            final_info = {"episode_kpis": per_key, "_episode_kpis": masks[-1]}
             infos["final_obs"] = final_obs
             infos["_final_obs"] = mask
             infos["final_info"] = final_info
