@@ -221,6 +221,44 @@ def vector_outputs(buf, lay, k, length, info, step_index, truncated):
     return ended
 
 
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, rate_out):
+    """Actions into the buffer, drive rows ``base + k``, sensor noise drawn; returns the number of non-finite
+    actions (then nothing is written and no noise is drawn)."""
+    bad = apply_actions(actions, normalized, max_rate_g_s, buf, lay[4] + K.I_ADBLUE, lay[10], rate_out)
+    if bad > 0:
+        return bad
+    for b in range(buf.shape[0]):
+        row[b] = base[b] + k[b]
+    standard_normal_fill(rng, noise)
+    return 0
+
+
+# One compiled call per vector-env step (each numba call costs a few microseconds of argument checks, and the
+# Python glue between calls as much again): actions, noise, the plants, the bookkeeping. Returns -(number of
+# non-finite actions) if there are any (nothing done), else 1 if a plant's cycle ended, else 0.
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def vector_step_serial(actions, normalized, max_rate_g_s, buf, lay, obs, drive, base, k, length, row, rng, noise,
+                       noise_idx, dt, info, step_index, truncated):
+    bad = _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, info[6])
+    if bad > 0:
+        return -bad
+    for b in range(buf.shape[0]):
+        _one(b, buf, lay, obs, drive, row, noise, noise_idx, dt)
+    return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated) else 0
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True, parallel=True)
+def vector_step_parallel(actions, normalized, max_rate_g_s, buf, lay, obs, drive, base, k, length, row, rng, noise,
+                         noise_idx, dt, info, step_index, truncated):
+    bad = _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, info[6])
+    if bad > 0:
+        return -bad
+    for b in numba.prange(buf.shape[0]):
+        _one(b, buf, lay, obs, drive, row, noise, noise_idx, dt)
+    return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated) else 0
+
+
 # column blocks of the PlantBatch buffer: (name, width or None for n_cells)
 _BLOCKS = (("theta", None), ("temperature_k", None), ("sensor_state", K.N_SENSOR_STATES),
            ("inputs", len(K.INPUT_FIELDS)), ("power_kw", 1), ("cat_params", 25), ("aux_params", K.N_AUX),
@@ -291,6 +329,7 @@ class PlantBatch:
         self.nh3_sensor = bool(nh3_sensor)
         self.privileged = bool(privileged)
         self._chooser = _ThreadingChooser() if n >= K.PARALLEL_MIN_BATCH else None
+        self._noise_rows = np.arange(n, dtype=np.int64)
         self.col_adblue = offsets[3] + K.I_ADBLUE
         self.col_action = offsets[9]
         self.col_reward = offsets[12]
@@ -309,6 +348,25 @@ class PlantBatch:
         (_env_step_parallel if mode else _env_step_serial)(self.buf, self.layout, self.obs, drive, row_idx, noise_tab,
                                                            noise_idx, dt)
         chooser.record(mode, time.perf_counter() - start)
+
+    def vector_step(self, actions: np.ndarray, normalized: bool, max_rate_g_s: float, drive: np.ndarray,
+                    base: np.ndarray, k: np.ndarray, length: np.ndarray, row: np.ndarray, rng: np.random.Generator,
+                    noise: np.ndarray, dt: float, info: np.ndarray, step_index: np.ndarray,
+                    truncated: np.ndarray) -> int:
+        """The vector environment's step in one compiled call (see :func:`vector_step_serial`): ``actions`` (B,)
+        raw, plant b on drive row ``base[b] + k[b]`` (written to ``row``) and noise row b of ``noise`` (drawn from
+        ``rng``); advances ``k``; fills ``info`` (7, B), ``step_index`` and ``truncated``. Returns -(number of
+        non-finite actions) if any (nothing done), else 1 if a cycle ended, else 0."""
+        args = (actions, normalized, max_rate_g_s, self.buf, self.layout, self.obs, drive, base, k, length, row, rng,
+                noise, self._noise_rows, dt, info, step_index, truncated)
+        chooser = self._chooser
+        if chooser is None:
+            return vector_step_serial(*args)
+        mode = chooser.pick()
+        start = time.perf_counter()
+        status = (vector_step_parallel if mode else vector_step_serial)(*args)
+        chooser.record(mode, time.perf_counter() - start)
+        return status
 
     def initial_observation(self, b: int, upstream_nox_ppm: float, inlet_temperature_k: float, flow_mol_s: float,
                             action_norm: float) -> None:

@@ -67,6 +67,7 @@ class UreaSCRVectorEnv(VectorEnv):
         self.dt = cfg.dt
         self.max_rate_g_s = cfg.dosing.max_rate_g_s
         self.random_offsets = bool(random_offsets)
+        self._normalized_actions = cfg.action_mode == "normalized"
         self.random_cycle_pool = int(random_cycle_pool)
         self.render_mode = None
         if cfg.action_mode == "normalized":
@@ -96,7 +97,6 @@ class UreaSCRVectorEnv(VectorEnv):
         self._ones = np.ones(n, dtype=bool)
         self._row = np.zeros(n, dtype=np.int64)
         self._noise = np.zeros((n, K.N_NOISE))
-        self._noise_idx = np.arange(n, dtype=np.int64)
         self._needs_reset = True
         self._rng_ready = False
 
@@ -184,34 +184,29 @@ class UreaSCRVectorEnv(VectorEnv):
         names = np.array([self._traces[t].name for t in self._env_trace], dtype=object)
         return self._batch.obs.copy(), {"cycle": names, "_cycle": self._ones.copy()}
 
-    def _actions(self, actions: Any) -> np.ndarray:
-        """Validate ``actions`` and write them to the batch; returns the (7, num_envs) info block, whose row 6 holds
-        the AdBlue rates [g/s]."""
+    def _action_array(self, actions: Any) -> np.ndarray:
+        """``actions`` as a float (num_envs,) array (values unchecked)."""
         a = np.asarray(actions)
         if a.dtype != np.float32 and a.dtype != np.float64:
             a = np.asarray(actions, dtype=np.float64)
         if a.shape not in ((self.num_envs, 1), (self.num_envs,)):
             raise ValueError(f"actions must have shape ({self.num_envs}, 1), got {a.shape}")
-        a = a.reshape(self.num_envs)
-        info = np.empty((7, self.num_envs))
-        b = self._batch
-        if core.apply_actions(a, self.config.action_mode == "normalized", self.max_rate_g_s, b.buf, b.col_adblue,
-                              b.col_action, info[6]):
-            raise ValueError(f"actions must be finite; NaN or inf at envs {np.flatnonzero(~np.isfinite(a))[:10]}")
-        return info
+        return a.reshape(self.num_envs)
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         if self._needs_reset:
             raise RuntimeError("call reset() before step()")
-        info = self._actions(actions)
-        b = self._batch
-        np.add(self._base, self._k, out=self._row)
-        core.standard_normal_fill(self.np_random, self._noise)
-        b.step(self.dt, self._flat, self._row, self._noise, self._noise_idx)
+        a = self._action_array(actions)
         n = self.num_envs
+        info = np.empty((7, n))  # rows: nox, nh3, adblue cost, tailpipe NOx, NH3 ppm, reward, AdBlue g/s
         step_index = np.empty(n, dtype=np.int64)
         truncated = np.empty(n, dtype=bool)
-        ended = core.vector_outputs(b.buf, b.layout, self._k, self._len, info, step_index, truncated)
+        b = self._batch
+        status = b.vector_step(a, self._normalized_actions, self.max_rate_g_s, self._flat, self._base, self._k,
+                               self._len, self._row, self.np_random, self._noise, self.dt, info, step_index, truncated)
+        if status < 0:
+            raise ValueError(f"actions must be finite; NaN or inf at envs {np.flatnonzero(~np.isfinite(a))[:10]}")
+        ended = status > 0
         terminated = np.zeros(n, dtype=bool)
         ones = self._ones
         infos: dict[str, Any] = {
