@@ -1,8 +1,10 @@
 """Machinery shared by the single and the vector environment: one compiled step for B plants.
 
-:func:`env_step` advances B plants by one control interval (the physics of :mod:`scr_env.physics.kernel`), then
-computes, still in compiled code, each plant's reward terms, the episode KPI accumulators and the observation. The
-single environment calls it with B = 1, the vector environment with B = num_envs; neither has its own copy.
+The per-plant step (``_one``) advances one plant by one control interval (the physics of
+:mod:`scr_env.physics.kernel`), then computes, still in compiled code, its reward terms, the episode KPI accumulators
+and the observation. The single environment runs it for B = 1 (:meth:`PlantBatch.step`), the vector environment for
+B = num_envs together with its action, noise and bookkeeping work (:meth:`PlantBatch.vector_step`), serially or on
+all threads, whichever is faster at the moment; neither has its own copy of the physics.
 """
 from __future__ import annotations
 

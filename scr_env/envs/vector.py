@@ -18,8 +18,8 @@ from scr_env.physics import kernel as K
 class UreaSCRVectorEnv(VectorEnv):
     """``num_envs`` independent SCR plants (see :class:`scr_env.envs.urea_scr.UreaSCREnv` for the spec of one).
 
-    Every step advances all plants with one call of the same compiled kernel the single environment uses (run on
-    several threads for large batches). Create it with
+    Every step advances all plants with one compiled call of the same per-plant code the single environment uses (on
+    all threads for large batches, unless a busy machine makes the serial loop faster). Create it with
     ``gymnasium.make_vec("scr_env/UreaSCR-v0", num_envs=N, vectorization_mode="vector_entry_point", **kwargs)``.
 
     Beyond the single environment's arguments:
