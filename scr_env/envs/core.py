@@ -275,12 +275,14 @@ class _ThreadingChooser:
     On an idle machine the threaded step is about num_threads times faster, but when other processes keep the
     cores busy, a static split over threads waits for the slowest, descheduled one and can be several times slower
     than the serial loop (measured at load 3.7 on 2 cores: 160 k vs 400 k env-steps/s at 1024 envs). So the step
-    keeps a running mean of the time of each variant, runs the faster one, and re-times the other every
+    keeps a running estimate of the time of each variant, runs the faster one, and re-times the other every
     ``PROBE_EVERY`` steps (the first call of each is skipped: it may include JIT compilation or cache loading).
+    The estimate follows a faster time at once and a slower one gradually, so one slow outlier (a descheduled
+    thread) does not keep the step on the slower variant for many probes.
     """
 
     PROBE_EVERY = 64  # steps between re-timings of the slower variant [chosen: costs ~1 % when it is 2x slower]
-    SMOOTHING = 0.25  # weight of a new timing in the running mean [-] [chosen]
+    SMOOTHING = 0.25  # weight of a slower new timing in the running estimate [-] [chosen]
 
     def __init__(self) -> None:
         self.mean_s = [math.inf, math.inf]  # serial, threaded
@@ -305,7 +307,7 @@ class _ThreadingChooser:
         if self.calls[mode] == 1:
             return
         m = self.mean_s[mode]
-        self.mean_s[mode] = seconds if m == math.inf else m + self.SMOOTHING * (seconds - m)
+        self.mean_s[mode] = seconds if seconds < m else m + self.SMOOTHING * (seconds - m)
 
 
 class PlantBatch:

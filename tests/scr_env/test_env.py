@@ -214,6 +214,32 @@ def test_compiled_noise_draw_is_numpys() -> None:
         assert a.bit_generator.state == b.bit_generator.state
 
 
+def test_threading_chooser_runs_the_faster_variant_and_recovers_from_outliers() -> None:
+    from scr_env.envs.core import _ThreadingChooser
+
+    def run(chooser: _ThreadingChooser, seconds: dict[int, float], steps: int) -> list[int]:
+        picks = []
+        for _ in range(steps):
+            mode = chooser.pick()
+            chooser.record(mode, seconds[mode])
+            picks.append(mode)
+        return picks
+
+    c = _ThreadingChooser()
+    picks = run(c, {0: 2e-3, 1: 1e-3}, 4 + 640)
+    assert picks[:4] == [1, 1, 0, 0]  # each variant timed twice, the first (compilation) call ignored
+    assert picks[4:].count(0) == 10  # then the faster one, the other re-timed every PROBE_EVERY steps
+    # one slow outlier of the threaded step: back on it at the next re-timing
+    c = _ThreadingChooser()
+    c.calls = [2, 2]
+    c.mean_s = [2e-3, 50e-3]
+    picks = run(c, {0: 2e-3, 1: 1e-3}, 2 * c.PROBE_EVERY)
+    assert picks[c.PROBE_EVERY - 1:2 * c.PROBE_EVERY - 1] == [1] * c.PROBE_EVERY
+    # the machine gets busy: the threaded step turns slow, the serial loop takes over within a few steps
+    picks = run(c, {0: 2e-3, 1: 8e-3}, 10)
+    assert picks[-5:] == [0] * 5
+
+
 def test_vector_env_threaded_and_serial_steps_agree_bitwise() -> None:
     """Large batches run the threaded or the serial compiled step, whichever is faster right now: same bits."""
     runs = []
