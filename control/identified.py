@@ -157,6 +157,10 @@ class StorageGreyBox:
         """NH3 [ppm] that a cell at coverage ``theta`` and solid temperature ``t_k`` desorbs into NH3- and NOx-free
         gas at ``flow_mol_s`` (the identified model's gas balance with no inlet NH3; symbolic or numeric)."""
         nom, p, n = _NOMINAL, self.params_, int(self.n_cells)
+        # clipped to the physical range, as in the step: NLP iterates outside the box must not reach the pole of
+        # the gas balance at theta > 1 or 1 / T at T <= 0 (NaN gradients of the terminal cost)
+        theta = ca.fmin(ca.fmax(theta, 0.0), 1.0)
+        t_k = ca.fmax(t_k, _T_MIN_K)
         omega = nom["omega_mol"] * np.exp(p[0])
         e_des = nom["e_des"] * (1 + p[3])
         eg = nom["gamma"] * np.exp(p[4]) * e_des / (R_GAS * t_k)
