@@ -4,7 +4,12 @@ models of the tailpipe NOx, beside the published Table 2.
 Protocol (Paper IV, ALGORITHMS.md section 2): :func:`ident.plant_data.whtc_dataset` (1200 samples at 0.5 s from a
 hot-WHTC segment, open-loop feedforward dosing with a random-step ANR excitation), first 900 samples for estimation,
 last 300 for validation, every signal normalised with the estimation statistics. FIT and MSE on the simulated
-output in normalised units, initial state estimated from each record (as MATLAB ``compare``).
+output in normalised units. Estimation figures: x(0) estimated on the estimation record. Validation figures
+(``fit_validation``): the model simulated on through all 1200 samples from that x(0), scored on the last 300, so the
+validation state is the one the estimation data lead to and no validation output is used (the thesis plots its
+validation simulation over samples 900-1200 of the one record). For comparison ``fit_validation_x0_from_validation``
+is the MATLAB ``compare`` figure: the validation record simulated alone from an x(0) fitted to its own measured
+output, which lets 2 states per input absorb slow errors with the validation output (optimistic).
 
 =====  ==========================================================================================================
 M-I    StateSpacePEM, order 2, simulation-error criterion
@@ -13,13 +18,40 @@ M-III  Wiener: M-II's structure + output saturation at w_min = -mean(y)/SD(y) (z
 M-IV   Hammerstein-Wiener: temperature through exp(-a/T), a = 1e4 K fixed, normalised; saturation as M-III
 M-V    Hammerstein-Wiener: M-IV's (normalised) inputs through continuous piecewise-linear functions with 9, 5, 9, 5
        segments (knots at estimation-data quantiles, values estimated, held constant beyond the estimation range);
-       saturation as M-III. Started from M-IV (fitted first on the same estimation data; identity-like blocks), the
-       temperature block non-decreasing (catalyst activity rises with temperature), a roughness penalty on the
-       blocks' slope changes with its weight chosen from {0, 0.01, 0.1, 1, 10, 100} by the simulated FIT on the
-       last 25 % of the estimation data (fitted on the first 75 %), then refitted on all 900 samples. No choice
-       looks at the validation part; the options were compared on the other segments of
-       :mod:`experiments.paper4_multisegment`.
+       nb = nf = 2; saturation as M-III; the temperature block non-decreasing (catalyst activity rises with
+       temperature); started from M-IV with the same delays (fitted first on the same data; identity-like blocks);
+       a roughness penalty on the blocks' slope changes.
 =====  ==========================================================================================================
+
+M-V's selection rule (estimation data only, :func:`ident.hammerstein_wiener.select_by_holdout`): 12 candidates,
+the input delay nk in {1, 0} (the thesis' 1, or 0: the inlet NOx reaches the tailpipe within one 0.5 s sample) times
+the roughness weight in {100, 10, 1, 0.1, 0.01, 0}; each is fitted on the first 675 estimation samples and scored by
+the FIT over samples 675-900 of its output simulated through the estimation record from an x(0) estimated on the
+first 675; the best is refitted on all 900. The validation samples are not used by any choice. The candidate set
+and the rule were compared on 12 other segments (WHSC, random cycles, WHTC 1200-1800 s; none overlapping this
+segment's validation window), whose validation parts served as the development data: adding nk = 0 to the
+candidates raised the median validation FIT there from 57 to 62 %. Tried there and not adopted (no systematic
+gain, the spread between segments dominates): monotone blocks on every input, unit-gain normalisation of the
+linear block (``unit_gain``), a steady-state initial condition (``initial="steady"``), blocked 4-fold
+cross-validation and the estimation cost as selection criteria, a smoothness grid reaching 1e-4 or 1000.
+
+Result (seed 0, about 35 s on one core): M-V 69.3 % FIT on the estimation data, 54.4 % on the validation data
+(67.9 % with the validation x(0) of MATLAB ``compare``); M-IV 50.9 %, the linear models 48 %. The previous rule
+(nk = 1 only) gives 36.4 % carried on (64.7 % compare-style, the figure reported before). The thesis' 68.05 % is
+not reached. What limits it:
+
+* the additive structure: the tailpipe NOx is about inlet NOx times (1 - conversion), and the conversion rises from
+  about 0.3-0.6 below 545 K to 0.7-0.9 above it over the warm-up in the estimation data; the validation window is
+  all above 559 K. A sum of per-input blocks cannot make the inlet-NOx gain depend on the temperature or the stored
+  NH3, so one compromise gain serves both regimes and every model misses the validation peaks;
+* the NH3 storage is a slow linear mode (pole about 0.99 on the urea input): simulated on over the 150 s of
+  validation data from the state the estimation data end in, its error accumulates. Fitting the 8 states to the
+  validation output instead (``fit_validation_x0_from_validation``) gains 13 points for M-V: that much of a
+  ``compare``-style figure is the initial state absorbing slow model error;
+* the selection signal: 150 of the last 225 estimation samples are idle (inlet NOx held at 190 ppm), so the hold-out
+  FIT swings by tens of points between neighbouring candidates and predicts validation weakly (over the 12
+  development segments the rule beats the previous one, nk = 1 only, in 7 and loses in 4; the spread between
+  segments, e.g. M-V from -196 % to 74 %, dwarfs any estimator option tried).
 
     python -m experiments.reproduce_paper4 [--json PATH] [--seed 0] [--no-plots]
 
@@ -27,6 +59,13 @@ Figures (Paper IV's Figures 5 and 6: measured and simulated tailpipe NOx per mod
 data, in ppm) and ``results.json`` go to ``runs/reproduce_paper4/<stamp>/``.
 """
 from __future__ import annotations
+
+import os
+
+# one BLAS thread: the fits work on small matrices, and on shared cores a multi-threaded BLAS spins and runs them
+# many times slower (set before numpy is first imported, i.e. when run as a script)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 import time
@@ -37,9 +76,16 @@ import numpy as np
 
 from experiments._runs import run_folder, write_json
 from ident.dataset import IODataset
-from ident.hammerstein_wiener import Arrhenius, HammersteinWiener, Identity, PiecewiseLinear, Saturation
+from ident.hammerstein_wiener import (
+    Arrhenius,
+    HammersteinWiener,
+    Identity,
+    PiecewiseLinear,
+    Saturation,
+    select_by_holdout,
+)
 from ident.linear import OutputError, StateSpacePEM
-from ident.metrics import compare
+from ident.metrics import compare, fit_percent, mse
 from ident.plant_data import PAPER4_N_ESTIMATION, PAPER4_N_SAMPLES, whtc_dataset
 from ident.preprocessing import ARRHENIUS_A_K, Normalizer
 
@@ -51,10 +97,13 @@ MODELS = ("M-I", "M-II", "M-III", "M-IV", "M-V")
 PWL_SEGMENTS = (9, 5, 9, 5)
 TEMPERATURE_COLUMN = 2
 #: M-V's estimation options (see :func:`fit_models`).
-MV_DEFAULT: dict[str, Any] = {"init": "m4", "smoothness": (0.0, 1e-2, 1e-1, 1.0, 10.0, 100.0),
+MV_DEFAULT: dict[str, Any] = {"init": "m4", "smoothness": (0.0, 1e-2, 1e-1, 1.0, 10.0, 100.0), "nk": (1, 0),
                               "monotone": (TEMPERATURE_COLUMN,), "regularization": 1e-3}
+#: Fraction of the estimation data (its end) held out to choose M-V's candidate (:func:`select_by_holdout`).
+MV_HOLDOUT = 0.25
 #: The M-V of the first reproduction (best linear start, no roughness penalty, no monotonicity), for comparison.
-MV_PLAIN: dict[str, Any] = {"init": "oe", "smoothness": 0.0, "monotone": (), "regularization": 1e-3}
+MV_PLAIN: dict[str, Any] = {"init": "oe", "smoothness": 0.0, "nk": (1,), "monotone": (),
+                             "regularization": 1e-3}
 
 
 def fit_models(ds: IODataset, n_estimation: int = PAPER4_N_ESTIMATION, output: int = 0,
@@ -64,10 +113,12 @@ def fit_models(ds: IODataset, n_estimation: int = PAPER4_N_ESTIMATION, output: i
 
     ``mv`` overrides M-V's options (:data:`MV_DEFAULT`): ``init`` "oe" (the best linear model through identity
     blocks) or "m4" (M-IV, fitted first on the same estimation data, with identity-like piecewise-linear blocks);
-    ``smoothness`` (float, or a grid chosen on the last 25 % of the estimation data); ``monotone`` (input columns
-    whose block is constrained non-decreasing); ``regularization`` (ridge toward the identity).
+    ``smoothness`` and ``nk`` (sequences: every pair is a candidate, chosen on the last :data:`MV_HOLDOUT` of the
+    estimation data by :func:`~ident.hammerstein_wiener.select_by_holdout`); ``monotone`` (input columns whose block
+    is constrained non-decreasing); ``regularization`` (ridge toward the identity).
 
-    Returns the table rows and a dict with the normalised records and simulated outputs for plotting.
+    Returns the table rows and a dict with the normalised records, the models' input records (``u_est``, ``u_val``),
+    the fitted models and the simulated outputs for plotting.
     """
     ds = ds.select(outputs=[output])
     est, val = ds.split(index=n_estimation)
@@ -92,7 +143,8 @@ def fit_models(ds: IODataset, n_estimation: int = PAPER4_N_ESTIMATION, output: i
     hv[:, TEMPERATURE_COLUMN] = val.u[:, TEMPERATURE_COLUMN]
     n_in = ds.n_inputs
     sims: dict[str, Any] = {"y_est": ye[:, 0], "y_val": yv[:, 0], "scale": float(ny.scale_[0]),
-                            "mean": float(ny.mean_[0]), "t_est": est.time, "t_val": val.time}
+                            "mean": float(ny.mean_[0]), "t_est": est.time, "t_val": val.time,
+                            "u_est": {}, "u_val": {}}
     rows = []
     fitted: dict[str, Any] = {}
     for name in models:
@@ -111,28 +163,45 @@ def fit_models(ds: IODataset, n_estimation: int = PAPER4_N_ESTIMATION, output: i
         elif name == "M-V":
             opt = {**MV_DEFAULT, **(mv or {})}
             segs = PWL_SEGMENTS if n_in == len(PWL_SEGMENTS) else (5,) * n_in
-            pwl = [PiecewiseLinear(n_segments=s, extrapolation="constant", monotone=i in opt["monotone"])
-                   for i, s in enumerate(segs)]
-            # M-IV is a Wiener model on M-IV's inputs (exp(-a/T) with a fixed): the template fitted inside the fit
-            init = HammersteinWiener(output_block=Saturation(lower=w_min)) if opt["init"] == "m4" else None
-            smooth = opt["smoothness"]
-            model = HammersteinWiener(input_blocks=pwl, output_block=Saturation(lower=w_min), init_model=init,
-                                      smoothness=tuple(smooth) if np.ndim(smooth) else float(smooth),
-                                      regularization=opt["regularization"])
+            smooth = [float(x) for x in np.atleast_1d(opt["smoothness"])]
+            cands, labels = [], []
+            for nk in opt["nk"]:
+                pwl = [PiecewiseLinear(n_segments=s, extrapolation="constant", monotone=i in opt["monotone"])
+                       for i, s in enumerate(segs)]
+                # M-IV is a Wiener model on M-IV's inputs (exp(-a/T) with a fixed): the template fitted inside the fit
+                init = HammersteinWiener(output_block=Saturation(lower=w_min), nk=nk) if opt["init"] == "m4" else None
+                for lam in sorted(smooth, reverse=True):   # smoother first: ties go to the smoother candidate
+                    cands.append(HammersteinWiener(input_blocks=pwl, output_block=Saturation(lower=w_min),
+                                                   init_model=init, nk=nk, smoothness=lam,
+                                                   regularization=opt["regularization"]))
+                    labels.append(f"nk={nk} smoothness={lam:g}")
+            if len(cands) > 1:
+                model, ho_scores = select_by_holdout(cands, ve, ye, holdout=MV_HOLDOUT)
+                chosen = labels[int(np.argmax(ho_scores))]
+            else:
+                model, ho_scores, chosen = cands[0], [], labels[0]
             data = (ve, vv)
         else:
             raise ValueError(f"unknown model {name!r}")
-        model.fit(data[0], ye)
+        if not hasattr(model, "b_"):
+            model.fit(data[0], ye)
         fit_s = time.perf_counter() - t0
         fitted[name] = model
-        ce, cv = compare(model, data[0], ye), compare(model, data[1], yv)
-        sims[name] = (ce.y_hat[:, 0], cv.y_hat[:, 0])
+        ce, cv0 = compare(model, data[0], ye), compare(model, data[1], yv)
+        # the validation output simulated on from the end of the estimation data: x(0) estimated on the estimation
+        # record only, the model run through all 1200 samples, scored on the last 300 (no validation output used)
+        y_run = np.asarray(model.predict(np.vstack([data[0], data[1]]), y0=ye), dtype=float)[:, :1]
+        y_val_hat = y_run[len(ye):]
+        fit_v, mse_v = float(fit_percent(yv, y_val_hat)), float(mse(yv, y_val_hat))
+        sims[name] = (ce.y_hat[:, 0], y_val_hat[:, 0])
+        sims["u_est"][name], sims["u_val"][name] = data
         row = {"model": name, "n_params": int(model.n_params_), "fit_estimation": float(ce.fit),
-               "fit_validation": float(cv.fit), "mse_estimation": float(ce.mse), "mse_validation": float(cv.mse),
-               "fit_time_s": round(fit_s, 2)}
+               "fit_validation": fit_v, "mse_estimation": float(ce.mse), "mse_validation": mse_v,
+               "fit_validation_x0_from_validation": float(cv0.fit),
+               "mse_validation_x0_from_validation": float(cv0.mse), "fit_time_s": round(fit_s, 2)}
         if name == "M-V":
-            row["smoothness"] = float(model.smoothness_)
-            row["holdout_fit"] = {f"{k:g}": round(v, 2) for k, v in model.holdout_scores_.items()}
+            row["chosen"] = chosen
+            row["holdout_fit"] = {k: round(v, 2) for k, v in zip(labels, ho_scores)}
         if name in PUBLISHED:
             p = PUBLISHED[name]
             row["published"] = {"fit_estimation": p[0], "mse_estimation": p[1], "fit_validation": p[2],
@@ -186,18 +255,29 @@ def main(argv: list[str] | None = None) -> int:
     out = run_folder("reproduce_paper4")
     result = {"rows": rows, "data": ds.meta, "seed": args.seed,
               "protocol": {"n_samples": PAPER4_N_SAMPLES, "n_estimation": PAPER4_N_ESTIMATION, "dt_s": ds.dt,
-                           "normalisation": "estimation mean/SD", "fit": "simulated output, x0 estimated",
-                           "output": ds.output_names[0], "pwl_segments": list(PWL_SEGMENTS)},
+                           "normalisation": "estimation mean/SD",
+                           "fit": "simulated output; x0 estimated on the estimation data, validation: the simulation "
+                                  "carried on through the validation data",
+                           "output": ds.output_names[0], "pwl_segments": list(PWL_SEGMENTS),
+                           "mv_selection": f"best simulated FIT on the last {MV_HOLDOUT:.0%} of the estimation data "
+                                           "(fitted on the rest), refitted on all of it"},
               "runtime_s": round(time.perf_counter() - t0, 1)}
     print(f"data: {ds.meta['cycle']} {ds.meta['start_s']:g}-{ds.meta['start_s'] + ds.meta['duration_s']:g} s, "
           f"seed {args.seed}, base ANR {ds.meta['base_anr']}, excitation {ds.meta['excitation']}")
     print(f"{'model':6s} {'params':>6s} | {'FIT est':>8s} {'FIT val':>8s} {'MSE est':>8s} {'MSE val':>8s} | "
-          f"{'published FIT est/val, MSE est/val':s}")
+          f"{'val x0*':>8s} | {'published FIT est/val, MSE est/val':s}")
     for r in rows:
         p = r["published"]
         print(f"{r['model']:6s} {r['n_params']:6d} | {r['fit_estimation']:7.2f}% {r['fit_validation']:7.2f}% "
-              f"{r['mse_estimation']:8.3f} {r['mse_validation']:8.3f} | {p['fit_estimation']:6.2f}% "
+              f"{r['mse_estimation']:8.3f} {r['mse_validation']:8.3f} | "
+              f"{r['fit_validation_x0_from_validation']:7.2f}% | {p['fit_estimation']:6.2f}% "
               f"{p['fit_validation']:6.2f}%  {p['mse_estimation']:.3f} {p['mse_validation']:.3f}")
+    print("FIT val: simulated on from the estimation data into the validation data (state carried over, no "
+          "validation output used); val x0*: the validation record simulated alone from an x(0) estimated on its own "
+          "measured output (MATLAB compare)")
+    mv_row = next((r for r in rows if r["model"] == "M-V"), None)
+    if mv_row is not None:
+        print(f"M-V chosen on the last {MV_HOLDOUT:.0%} of the estimation data: {mv_row['chosen']}")
     if not args.no_plots:
         result["figures"] = [str(p) for p in plot(sims, out)]
         print("figures:", ", ".join(result["figures"]))

@@ -10,7 +10,7 @@ from ident.hammerstein_wiener.blocks import (
     StaticNonlinearity,
     block_from_dict,
 )
-from ident.hammerstein_wiener.estimator import HammersteinWiener, hammerstein, wiener
+from ident.hammerstein_wiener.estimator import HammersteinWiener, hammerstein, select_by_holdout, wiener
 
 __all__ = [
     "Arrhenius",
@@ -23,5 +23,6 @@ __all__ = [
     "StaticNonlinearity",
     "block_from_dict",
     "hammerstein",
+    "select_by_holdout",
     "wiener",
 ]

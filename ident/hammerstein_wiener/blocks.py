@@ -75,6 +75,11 @@ class StaticNonlinearity:
         """Lower and upper bounds of the parameters (default: unbounded)."""
         return np.full(self.n_params(), -np.inf), np.full(self.n_params(), np.inf)
 
+    def scaled_params(self, p: np.ndarray, c: float) -> np.ndarray | None:
+        """Parameters of ``c * g(x; p)`` for ``c > 0``, or None when the block cannot be scaled by its parameters
+        (used by the estimator's ``unit_gain`` normalisation)."""
+        return None
+
     def roughness_matrix(self) -> np.ndarray | None:
         """A matrix ``R`` (n_rough, n_params) whose ``R @ p`` measures the block's departure from a straight line
         (penalised by the estimator's ``smoothness``), or None when the block has no such measure."""
@@ -285,6 +290,14 @@ class PiecewiseLinear(StaticNonlinearity):
         p = np.asarray(p, dtype=float)
         return np.asarray(self.knots, dtype=float), (np.cumsum(p) if self._monotone() else p)
 
+    def scaled_params(self, p: np.ndarray, c: float) -> np.ndarray | None:
+        p = np.asarray(p, dtype=float).copy()
+        if self.estimate_knots:
+            p[self._k():] *= c   # the values; the knots stay
+        else:
+            p *= c               # values, or first value and increments (monotone): both linear in the values
+        return p
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = super().bounds()
         if self._monotone():
@@ -489,6 +502,9 @@ class Polynomial(StaticNonlinearity):
 
     def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
         return np.vander(_x(x), self.n_params(), increasing=True)
+
+    def scaled_params(self, p: np.ndarray, c: float) -> np.ndarray | None:
+        return np.asarray(p, dtype=float) * c
 
     def casadi(self, x: Any, p: np.ndarray) -> Any:
         out = 0.0

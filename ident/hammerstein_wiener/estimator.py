@@ -9,7 +9,8 @@ a static output block
 F_i parametrised by reflection coefficients ``tanh(eta)`` so every estimate is stable (as
 :class:`~ident.linear.OutputError`).
 
-Fit: the simulation error ``sum_t (y(t) - yhat(t))^2`` (zero initial state, as the output-error fit) is minimised
+Fit: the simulation error ``sum_t (y(t) - yhat(t))^2`` (zero initial state, as the output-error fit, unless
+``initial="steady"``) is minimised
 by ``scipy.optimize.least_squares`` with the exact Jacobian, every column from one linear filter pass:
 ``dyhat/dtheta = h'(w) dw/dtheta`` with ``dw/dp_i = B_i/F_i [dg_i/dp_i]``, ``dw/db_ik = q^-(nk+k) F_i^-1 v_i``,
 ``dw/df_ik = -q^-k F_i^-1 w_i`` (chained through the reflection map), plus ``dh/dp_h``. The start is the best
@@ -24,13 +25,27 @@ Options against overfitting flexible input blocks (Paper IV's M-V):
   piecewise-linear block the changes of slope at its inner knots), i.e. ``smoothness`` per unit of mean squared
   error; it pulls every block toward a straight line, which the linear block can absorb. A sequence of values is a
   grid: each is fitted on the first ``1 - holdout`` of the estimation data and scored by the simulated FIT on the
-  rest (simulated from the start, so the hold-out continues the fitted record), the best is refitted on all of it
+  rest (simulated through the whole record from an x(0) estimated on the fitted part, so the hold-out continues
+  the fitted record), the best is refitted on all of it
   (``smoothness_``, ``holdout_scores_``). Nothing outside the data passed to ``fit`` is used.
 * ``init_model`` may be a fitted :class:`~ident.linear.OutputError` or :class:`HammersteinWiener` on the same inputs,
   or an *unfitted* :class:`HammersteinWiener` template, which is then fitted first on the data passed to ``fit``
   (also on the inner split of the hold-out selection): e.g. M-V started from M-IV, a Wiener model on the same
   inputs, so the start is M-IV itself (identity-like piecewise-linear blocks) and the fit can only improve on it.
 * block bounds (``StaticNonlinearity.bounds``, e.g. ``PiecewiseLinear(monotone=True)``) are honoured.
+* :func:`select_by_holdout` chooses among whole model templates (orders, delays, smoothness...) the same way: each
+  fitted on the first part of the estimation data, scored on the held-out end, the best refitted on all of it.
+
+Further options:
+
+* ``fit(u, y, sample_weight)``: weights on the squared simulation errors; the record is still simulated through
+  zero-weight samples (a hold-out inside one record, or blocked cross-validation).
+* ``unit_gain``: removes the scale ambiguity between a free input block and its ``B_i/F_i`` by giving ``B_i/F_i`` a
+  static gain of +-1 (the sign of the start's) and letting the block carry the gain; without it the ambiguity is
+  only held by the ridge term, and a roughness penalty can be evaded by shrinking the block and growing ``B_i``
+  (slow convergence, results that depend on the iteration budget).
+* ``initial="steady"``: the fit assumes the linear block at rest at the first input (``w_i(0) = G_i v_i(0)``)
+  instead of at zero, so normalised inputs that start far from zero do not start a transient the data never had.
 
 Special cases: :func:`wiener` (identity inputs) and :func:`hammerstein` (identity output).
 """
@@ -52,7 +67,7 @@ from ident.linear import OutputError
 from ident.linear._statespace import _per_input, simulate_ss, tf_to_ss, validate_fit_data
 from ident.linear.oe import _KAPPA_MAX, poly_from_reflection, reflection_from_poly, stabilize_poly
 
-__all__ = ["HammersteinWiener", "hammerstein", "wiener"]
+__all__ = ["HammersteinWiener", "hammerstein", "select_by_holdout", "wiener"]
 
 
 def _shift(x: np.ndarray, k: int) -> np.ndarray:
@@ -60,6 +75,19 @@ def _shift(x: np.ndarray, k: int) -> np.ndarray:
     if k < len(x):
         out[k:] = x[:len(x) - k]
     return out
+
+
+def _longest_run(mask: np.ndarray) -> tuple[int, int]:
+    """Start and end (exclusive) of the longest run of True in ``mask``."""
+    best, start = (0, 0), None
+    for t, m in enumerate(np.append(mask, False)):
+        if m and start is None:
+            start = t
+        elif not m and start is not None:
+            if t - start > best[1] - best[0]:
+                best = (start, t)
+            start = None
+    return best
 
 
 @register_model("hammerstein_wiener")
@@ -90,6 +118,11 @@ class HammersteinWiener:
         the hold-out inside the estimation data.
     holdout : float
         Fraction of the estimation data (its end) held out to choose ``smoothness`` from a grid.
+    unit_gain : bool
+        Give each ``B_i/F_i`` behind a free, scalable input block a static gain of +-1 (see module docstring).
+    initial : {"zero", "steady"}
+        The linear block's state the fit assumes at the first sample: zero, or at rest at the first input.
+        (Prediction starts from zero or from an estimated state either way, see :meth:`predict`.)
 
     Attributes
     ----------
@@ -117,7 +150,8 @@ class HammersteinWiener:
                  nf: int | Sequence[int] = 2, nk: int | Sequence[int] = 1, regularization: float = 1e-3,
                  max_nfev: int = 200, tol: float = 1e-8,
                  init_model: OutputError | HammersteinWiener | None = None,
-                 smoothness: float | Sequence[float] = 0.0, holdout: float = 0.25) -> None:
+                 smoothness: float | Sequence[float] = 0.0, holdout: float = 0.25, unit_gain: bool = False,
+                 initial: str = "zero") -> None:
         self.input_blocks = input_blocks
         self.output_block = output_block
         self.nb = nb
@@ -129,12 +163,15 @@ class HammersteinWiener:
         self.init_model = init_model
         self.smoothness = smoothness
         self.holdout = holdout
+        self.unit_gain = unit_gain
+        self.initial = initial
 
     # ------------------------------------------------------------------------------------------- helpers
     def get_params(self) -> dict[str, Any]:
         """Constructor arguments as stored (scikit-learn convention)."""
         return {k: getattr(self, k) for k in ("input_blocks", "output_block", "nb", "nf", "nk", "regularization",
-                                              "max_nfev", "tol", "init_model", "smoothness", "holdout")}
+                                              "max_nfev", "tol", "init_model", "smoothness", "holdout",
+                                              "unit_gain", "initial")}
 
     def __repr__(self) -> str:
         return f"HammersteinWiener(input_blocks={self.input_blocks!r}, output_block={self.output_block!r}, " \
@@ -154,10 +191,16 @@ class HammersteinWiener:
             j += m
         bs, etas = [], []
         for i in range(len(self._blocks)):
-            bs.append(theta[j:j + self._nb[i]])
-            j += self._nb[i]
+            g = self._gain[i]
+            nb_free = self._nb[i] - (g is not None)
+            b = theta[j:j + nb_free]
+            j += nb_free
             etas.append(theta[j:j + self._nf[i]])
             j += self._nf[i]
+            if g is not None:  # unit static gain: sum(b) = g F(1)
+                f_sum = max(float(np.sum(poly_from_reflection(np.tanh(etas[i]))[0])), 1e-12)
+                b = np.append(b, g * f_sum - np.sum(b))
+            bs.append(b)
         m = self._out.n_free()
         p_out = theta[j:j + m] if m else self._p0_out
         return p_in, bs, etas, p_out
@@ -172,18 +215,33 @@ class HammersteinWiener:
             v = blk.value(u[:, i], p_in[i])
             f, df_dk = poly_from_reflection(np.tanh(etas[i]))
             num = np.concatenate([np.zeros(self._nk[i]), bs[i]])
-            wi = lfilter(num, f, v)
+            # "steady": at rest at the first input, w_i = B/F (v - v(0)) + G v(0), G = B(1)/F(1) the static gain
+            v0 = float(v[0]) if self._steady else 0.0
+            f_sum = max(float(np.sum(f)), 1e-12)   # F(1) > 0 for a stable F
+            gain = float(np.sum(bs[i])) / f_sum
+            wi = lfilter(num, f, v - v0) + gain * v0
             w += wi
             if not jac:
                 continue
             if blk.n_free():
-                cols_static.append(lfilter(num, f, blk.dp(u[:, i], p_in[i]), axis=0))
-            vf = lfilter([1.0], f, v)
-            cols_lin += [_shift(vf, self._nk[i] + k)[:, None] for k in range(self._nb[i])]
+                dp = blk.dp(u[:, i], p_in[i])
+                dp0 = dp[:1] if self._steady else np.zeros((1, dp.shape[1]))
+                cols_static.append(lfilter(num, f, dp - dp0, axis=0) + gain * dp0)
+            vf = lfilter([1.0], f, v - v0)
+            db = [_shift(vf, self._nk[i] + k)[:, None] + v0 / f_sum for k in range(self._nb[i])]
+            g = self._gain[i]
+            if g is not None:  # b_last = g F(1) - sum(other b): chain its column into the free ones
+                last = db.pop()
+                db = [c - last for c in db]
+            cols_lin += db
             if self._nf[i]:
-                wf = lfilter([1.0], f, wi)
+                wf = lfilter([1.0], f, wi - gain * v0)   # the filtered part (the steady offset: below)
                 dw_df = np.column_stack([-_shift(wf, k) for k in range(1, self._nf[i] + 1)])
-                cols_lin.append(dw_df @ df_dk[1:] * (1.0 - np.tanh(etas[i]) ** 2))
+                dw_df = dw_df - gain * v0 / f_sum       # d(G v0)/df_k, dF(1)/df_k = 1
+                d_eta = dw_df @ df_dk[1:]
+                if g is not None:
+                    d_eta = d_eta + last * (g * df_dk.sum(axis=0))[None, :]
+                cols_lin.append(d_eta * (1.0 - np.tanh(etas[i]) ** 2))
         y = self._out.value(w, p_out)
         if not jac:
             return y, None
@@ -194,8 +252,12 @@ class HammersteinWiener:
         return y, J
 
     # ----------------------------------------------------------------------------------------------- fit
-    def fit(self, u: Any, y: Any) -> HammersteinWiener:
+    def fit(self, u: Any, y: Any, sample_weight: Any = None) -> HammersteinWiener:
         """Minimise the simulation error from the best linear start; returns ``self``.
+
+        ``sample_weight`` (shape (N,), >= 0) weights each sample's squared simulation error; the model is still
+        simulated through every sample, so zero weights leave a gap in the criterion, not in the record (blocked
+        cross-validation on one record).
 
         Raises ``ValueError`` for NaN/inf, mismatched lengths, constant inputs, more than one output, a wrong
         number of input blocks or too few samples.
@@ -210,13 +272,18 @@ class HammersteinWiener:
                 raise ValueError(f"holdout must be in (0, 1), got {self.holdout!r}")
             u_all, y_all = as_2d("u", u), as_2d("y", y)
             n = check_same_length(u=u_all, y=y_all)
-            n_in = round(n * (1.0 - float(self.holdout)))
+            # the inner hold-out is the end of the weighted samples (with weights, zero-weight samples stay out)
+            use = self._sqrt_weights(sample_weight, n) > 0
+            n_end = int(np.flatnonzero(use)[-1]) + 1
+            n_in = round(n_end * (1.0 - float(self.holdout)))
             for lam in grid:
                 inner = HammersteinWiener(**{**self.get_params(), "smoothness": float(lam)})
                 try:
-                    inner._fit_once(u_all[:n_in], y_all[:n_in], float(lam))
-                    y_hat = inner.predict(u_all)[n_in:, 0]
-                    y_ho = y_all[n_in:, 0]
+                    inner._fit_once(u_all[:n_in], y_all[:n_in], float(lam),
+                                    None if sample_weight is None else np.asarray(sample_weight)[:n_in])
+                    keep = use[n_in:n_end]
+                    y_hat = inner.predict(u_all[:n_end], y0=y_all[:n_in])[n_in:, 0][keep]
+                    y_ho = y_all[n_in:n_end, 0][keep]
                     score = 100.0 * (1.0 - np.linalg.norm(y_ho - y_hat) / np.linalg.norm(y_ho - y_ho.mean()))
                 except (ValueError, np.linalg.LinAlgError):
                     score = -np.inf
@@ -224,18 +291,20 @@ class HammersteinWiener:
             best = max(scores, key=lambda k: (scores[k], k))  # ties: the smoother
         else:
             best = float(grid[0])
-        self._fit_once(u, y, best)
+        self._fit_once(u, y, best, sample_weight)
         self.smoothness_ = best
         self.holdout_scores_ = scores
         return self
 
-    def _fit_once(self, u: Any, y: Any, smoothness: float) -> HammersteinWiener:
-        u_arr, yv, th0 = self._prepare(u, y)
+    def _fit_once(self, u: Any, y: Any, smoothness: float, sample_weight: Any = None) -> HammersteinWiener:
+        u_arr, yv, th0 = self._prepare(u, y, sample_weight)
         nu = u_arr.shape[1]
+        sw = self._sqrt_weights(sample_weight, yv.size)
+        n_eff = float(np.sum(sw ** 2))
         # ridge rows on the free static parameters (input blocks first, output block last)
         n_in_free = sum(b.n_free() for b in self._blocks)
-        idx_arr = np.asarray(list(range(n_in_free)) + list(range(th0.size - self._out.n_free(), th0.size)),
-                             dtype=int)
+        end_out = th0.size   # theta: input blocks, linear block, output block
+        idx_arr = np.asarray(list(range(n_in_free)) + list(range(end_out - self._out.n_free(), end_out)), dtype=int)
         ref = th0[idx_arr]
         wts = np.sqrt(max(float(self.regularization), 0.0)) / np.maximum(np.abs(ref), 1.0)
         use_reg = self.regularization > 0 and idx_arr.size > 0
@@ -250,44 +319,57 @@ class HammersteinWiener:
                 R = blk.roughness_matrix() if smoothness > 0 else None
                 if R is not None and R.size:
                     rows = np.zeros((R.shape[0], th0.size))
-                    rows[:, j:j + m] = np.sqrt(smoothness * yv.size) * R
+                    rows[:, j:j + m] = np.sqrt(smoothness * n_eff) * R
                     rough_rows.append(rows)
             j += m
         if self._out.n_free():
-            lo[-self._out.n_free():], hi[-self._out.n_free():] = self._out.bounds()
+            sl = slice(end_out - self._out.n_free(), end_out)
+            lo[sl], hi[sl] = self._out.bounds()
         Rr = np.vstack(rough_rows) if rough_rows else np.zeros((0, th0.size))
         th0 = np.clip(th0, lo, hi)
 
         def resid(th: np.ndarray) -> np.ndarray:
-            e = yv - self._simulate(th, u_arr, False)[0]
+            e = sw * (yv - self._simulate(th, u_arr, False)[0])
             parts = [e, Rr @ th]
             if use_reg:
                 parts.append(wts * (th[idx_arr] - ref))
             return np.concatenate(parts)
 
         def jac(th: np.ndarray) -> np.ndarray:
-            J = [-self._simulate(th, u_arr, True)[1], Rr]
+            J = [-sw[:, None] * self._simulate(th, u_arr, True)[1], Rr]
             if use_reg:
                 R = np.zeros((idx_arr.size, th.size))
                 R[np.arange(idx_arr.size), idx_arr] = wts
                 J.append(R)
             return np.vstack(J)
 
-        self.initial_cost_ = float(np.mean((yv - self._simulate(th0, u_arr, False)[0]) ** 2))
+        def mse(th: np.ndarray) -> float:
+            return float(np.sum((sw * (yv - self._simulate(th, u_arr, False)[0])) ** 2) / n_eff)
+
+        self.initial_cost_ = mse(th0)
         bounded = bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
         res = least_squares(resid, th0, jac=jac, method="trf", x_scale="jac", ftol=self.tol, xtol=self.tol,
                             gtol=self.tol, max_nfev=self.max_nfev, bounds=(lo, hi) if bounded else (-np.inf, np.inf))
         th = res.x
-        cost = float(np.mean((yv - self._simulate(th, u_arr, False)[0]) ** 2))
+        cost = mse(th)
         if not np.isfinite(cost) or cost > self.initial_cost_:
             th, cost = th0, self.initial_cost_
         self._store(th, nu)
         self.cost_ = cost
-        for k in ("_blocks", "_out", "_p0_in", "_p0_out", "_nb", "_nf", "_nk"):
+        for k in ("_blocks", "_out", "_p0_in", "_p0_out", "_nb", "_nf", "_nk", "_gain", "_steady"):
             delattr(self, k)
         return self
 
-    def _prepare(self, u: Any, y: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    @staticmethod
+    def _sqrt_weights(sample_weight: Any, n: int) -> np.ndarray:
+        if sample_weight is None:
+            return np.ones(n)
+        w = np.asarray(sample_weight, dtype=float).reshape(-1)
+        if w.size != n or np.any(~np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
+            raise ValueError(f"sample_weight must be {n} finite non-negative weights, not all zero")
+        return np.sqrt(w)
+
+    def _prepare(self, u: Any, y: Any, sample_weight: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Validate, set up the working blocks and orders, fit the linear start; return (u, y, theta0)."""
         u_arr = as_2d("u", u)
         y_arr = as_2d("y", y)
@@ -303,6 +385,9 @@ class HammersteinWiener:
         out = Identity() if self.output_block is None else self.output_block
         if not isinstance(out, StaticNonlinearity):
             raise TypeError("output_block must be a StaticNonlinearity instance")
+        if self.initial not in ("zero", "steady"):
+            raise ValueError(f"initial must be 'zero' or 'steady', got {self.initial!r}")
+        self._steady = self.initial == "steady"
         nb, nf, nk = self._orders(nu)
         self._blocks = [b.copy() for b in blocks]
         self._out = out.copy()
@@ -314,9 +399,14 @@ class HammersteinWiener:
         v0 = np.column_stack([b.value(u_arr[:, i], p) for i, (b, p) in enumerate(zip(self._blocks, self._p0_in))])
         lin = self.init_model
         if lin is None:
-            lin = OutputError(nb=tuple(nb), nf=tuple(nf), nk=tuple(nk), max_nfev=self.max_nfev).fit(v0, yv)
+            # the best linear model; with sample weights, fitted on the longest run of weighted samples only (a
+            # start: the weighted fit refines it), so samples held out by zero weights never enter the fit
+            a, b = _longest_run(self._sqrt_weights(sample_weight, yv.size) > 0)
+            lin = OutputError(nb=tuple(nb), nf=tuple(nf), nk=tuple(nk), max_nfev=self.max_nfev).fit(v0[a:b],
+                                                                                                    yv[a:b])
         elif isinstance(lin, HammersteinWiener) and not hasattr(lin, "b_"):
-            lin = HammersteinWiener(**lin.get_params()).fit(u_arr, yv)  # a template: fit it on these data first
+            # a template: fit it on these data (same weights) first
+            lin = HammersteinWiener(**lin.get_params()).fit(u_arr, yv, sample_weight=sample_weight)
         check_is_fitted(lin, "b_")
         if isinstance(lin, HammersteinWiener):
             if lin.b_.shape[0] != nu:
@@ -329,21 +419,36 @@ class HammersteinWiener:
             lin_b, lin_f = lin.b_[0], lin.f_[0]
             w0 = lin.predict(v0)[:, 0]
         self._p0_out = self._out.initial_params(w0)
-        theta0: list[float] = []
-        for blk, p0 in zip(self._blocks, self._p0_in):
-            if blk.n_free():
-                theta0 += list(p0)
+        self._gain = [None] * nu
+        lin_part: list[float] = []
         for i in range(nu):
             b_i = np.zeros(nk[i] + nb[i])
             m = min(b_i.size, lin_b.shape[1])
             b_i[:m] = lin_b[i, :m]
-            theta0 += list(b_i[nk[i]:nk[i] + nb[i]])
+            b_i = b_i[nk[i]:nk[i] + nb[i]]
+            eta = np.zeros(0)
             if nf[i]:
                 f_i = np.zeros(nf[i] + 1)
                 m = min(f_i.size, lin_f.shape[1])
                 f_i[:m] = lin_f[i, :m]
                 f_i = stabilize_poly(f_i, 0.999)
-                theta0 += list(np.arctanh(np.clip(reflection_from_poly(f_i), -_KAPPA_MAX, _KAPPA_MAX)))
+                eta = np.arctanh(np.clip(reflection_from_poly(f_i), -_KAPPA_MAX, _KAPPA_MAX))
+            f_sum = float(np.sum(poly_from_reflection(np.tanh(eta))[0]))
+            gain = float(np.sum(b_i)) / f_sum
+            blk = self._blocks[i]
+            scaled = blk.scaled_params(self._p0_in[i], abs(gain)) if (self.unit_gain and blk.n_free() and nb[i]
+                                                                       and abs(gain) > 1e-8) else None
+            if scaled is not None:
+                # unit static gain of B_i/F_i (sign of the start's gain), the block scaled to carry the gain
+                self._gain[i] = float(np.sign(gain))
+                self._p0_in[i] = np.asarray(scaled, dtype=float)
+                b_i = b_i[:-1] / abs(gain)
+            lin_part += list(b_i) + list(eta)
+        theta0: list[float] = []
+        for blk, p0 in zip(self._blocks, self._p0_in):
+            if blk.n_free():
+                theta0 += list(p0)
+        theta0 += lin_part
         if self._out.n_free():
             theta0 += list(self._p0_out)
         return u_arr, yv, np.asarray(theta0, dtype=float)
@@ -408,8 +513,9 @@ class HammersteinWiener:
 
     def initial_state(self, u: Any, y: Any, n_iter: int = 8) -> np.ndarray:
         """The linear block's x(0) that best explains the measured ``y`` given ``u`` (Gauss-Newton through the
-        output block, from x(0) = 0, with step halving so the squared error never rises; samples where the output block
-        saturates carry no information)."""
+        output block from x(0) = 0 and from the steady state for the first input, the better kept; truncated steps,
+        step halving so the squared error never rises; samples where the output block saturates carry no
+        information)."""
         v = self.transform_inputs(u)
         y = as_2d("y", y, n_columns=1)[:, 0]
         n0 = check_same_length(u=v, y=y)
@@ -420,29 +526,42 @@ class HammersteinWiener:
         for t in range(n0):
             obs[t] = m
             m = m @ A
-        x0 = np.zeros(A.shape[0])
 
         def sse(x: np.ndarray) -> float:
             return float(np.sum((y - self.output_block_.value(w_zero + obs @ x, self.output_params_)) ** 2))
 
-        cost = sse(x0)
-        for _ in range(n_iter):
-            w = w_zero + obs @ x0
-            r = y - self.output_block_.value(w, self.output_params_)
-            J = self.output_block_.dx(w, self.output_params_)[:, None] * obs
-            dx, *_ = np.linalg.lstsq(J, r, rcond=None)
-            # step halving: through a saturating output block the Gauss-Newton step may overshoot (samples that
-            # leave the saturation change the residual), so accept only steps that lower the squared error
-            step, new_cost = 1.0, sse(x0 + dx)
-            while not new_cost <= cost and step > 1e-6:
-                step *= 0.5
-                new_cost = sse(x0 + step * dx)
-            if not new_cost <= cost:
-                break
-            x0, cost = x0 + step * dx, new_cost
-            if np.linalg.norm(step * dx) <= 1e-10 * (1.0 + np.linalg.norm(x0)):
-                break
-        return x0
+        def gauss_newton(x0: np.ndarray) -> tuple[np.ndarray, float]:
+            cost = sse(x0)
+            for _ in range(n_iter):
+                w = w_zero + obs @ x0
+                r = y - self.output_block_.value(w, self.output_params_)
+                J = self.output_block_.dx(w, self.output_params_)[:, None] * obs
+                # truncated least squares: directions the data barely observe (fast modes that died out, modes
+                # hidden behind the saturation) stay put instead of taking huge steps the linearisation does not
+                # support
+                dx, *_ = np.linalg.lstsq(J, r, rcond=1e-8)
+                # step halving: through a saturating output block the Gauss-Newton step may overshoot (samples that
+                # leave the saturation change the residual), so accept only steps that lower the squared error
+                step, new_cost = 1.0, sse(x0 + dx)
+                while not new_cost <= cost and step > 1e-6:
+                    step *= 0.5
+                    new_cost = sse(x0 + step * dx)
+                if not new_cost <= cost:
+                    break
+                x0, cost = x0 + step * dx, new_cost
+                if np.linalg.norm(step * dx) <= 1e-10 * (1.0 + np.linalg.norm(x0)):
+                    break
+            return x0, cost
+
+        # two starts, the better kept: x(0) = 0 and the steady state for the first input (through a saturation the
+        # squared error is not convex in x(0))
+        starts = [np.zeros(A.shape[0])]
+        try:
+            starts.append(np.linalg.solve(np.eye(A.shape[0]) - A, B @ v[0]))
+        except np.linalg.LinAlgError:
+            pass
+        best = min((gauss_newton(x) for x in starts if np.all(np.isfinite(x))), key=lambda xc: xc[1])
+        return best[0]
 
     def predict(self, u: Any, y0: Any = None, *, x0: Any = None) -> np.ndarray:
         """Simulated output, shape (N, 1).
@@ -545,3 +664,39 @@ def wiener(output_block: StaticNonlinearity, **kwargs: Any) -> HammersteinWiener
 def hammerstein(input_blocks: Sequence[StaticNonlinearity], **kwargs: Any) -> HammersteinWiener:
     """A Hammerstein model: static input blocks, linear block, identity output."""
     return HammersteinWiener(input_blocks=input_blocks, output_block=None, **kwargs)
+
+
+def select_by_holdout(candidates: Sequence[HammersteinWiener], u: Any, y: Any, holdout: float = 0.25
+                      ) -> tuple[HammersteinWiener, list[float]]:
+    """Choose among unfitted model templates on the estimation data alone, then refit the choice on all of it.
+
+    Each candidate is fitted with the last ``holdout`` fraction of the samples given zero weight (so it is fitted on
+    the first part only, its linear start too) and scored by the FIT over the held-out end of its output simulated
+    through the whole record from an x(0) estimated on the fitted part: the model continues the record it was
+    fitted on, as it will continue into new data (and as the validation data are scored). The best score wins
+    (ties: the earlier candidate, so list simpler ones first); it is refitted on all samples. Candidates whose fit
+    fails score -inf.
+
+    Returns the fitted winner and the hold-out FIT (%) of every candidate, in order.
+    """
+    if not candidates:
+        raise ValueError("no candidate models")
+    if not 0.0 < float(holdout) < 1.0:
+        raise ValueError(f"holdout must be in (0, 1), got {holdout!r}")
+    u_arr, y_arr = as_2d("u", u), as_2d("y", y)
+    n = check_same_length(u=u_arr, y=y_arr)
+    n_in = round(n * (1.0 - float(holdout)))
+    w = np.zeros(n)
+    w[:n_in] = 1.0
+    y_ho = y_arr[n_in:, 0]
+    scores: list[float] = []
+    for cand in candidates:
+        try:
+            m = HammersteinWiener(**cand.get_params()).fit(u_arr, y_arr, sample_weight=w)
+            y_hat = m.predict(u_arr, y0=y_arr[:n_in])[n_in:, 0]
+            score = 100.0 * (1.0 - np.linalg.norm(y_ho - y_hat) / np.linalg.norm(y_ho - y_ho.mean()))
+        except (ValueError, np.linalg.LinAlgError):
+            score = -np.inf
+        scores.append(float(score) if np.isfinite(score) else -np.inf)
+    best = int(np.argmax(scores))
+    return HammersteinWiener(**candidates[best].get_params()).fit(u_arr, y_arr), scores

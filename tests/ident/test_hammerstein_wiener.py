@@ -17,6 +17,7 @@ from ident.hammerstein_wiener import (
     Saturation,
     block_from_dict,
     hammerstein,
+    select_by_holdout,
     wiener,
 )
 from ident.io import load_model
@@ -215,3 +216,103 @@ def test_smoothness_grid_holdout_and_init_from_template() -> None:
         assert np.linalg.norm(blk.roughness_matrix() @ p) < 1e-2
     with pytest.raises(ValueError, match="smoothness"):
         HammersteinWiener(smoothness=-1.0).fit(u, y)
+
+
+@pytest.mark.parametrize("unit_gain,initial", [(True, "zero"), (False, "steady"), (True, "steady")])
+def test_exact_jacobian_with_unit_gain_and_steady_start(unit_gain, initial) -> None:
+    rng = np.random.default_rng(1)
+    u = np.column_stack([_inputs(300, 31), np.abs(_inputs(300, 32)) * 50 + 500, _inputs(300, 33)])
+    y = rng.standard_normal(300)
+    m = HammersteinWiener([PiecewiseLinear(3), Arrhenius(a=3000.0, estimate=True), PiecewiseLinear(4, monotone=True)],
+                          Saturation(-0.8, estimate=True), nb=(2, 1, 3), nf=(2, 1, 2), nk=(1, 0, 1),
+                          unit_gain=unit_gain, initial=initial)
+    u_arr, _, th = m._prepare(u, y)
+    # the Arrhenius block cannot be rescaled by its parameter: its B/F keeps a free gain
+    assert m._gain[1] is None and ((m._gain[0] is not None) == unit_gain)
+    th = th + 0.05 * rng.standard_normal(th.size)
+    _, J = m._simulate(th, u_arr, True)
+    h = 1e-6
+    num = np.column_stack([(m._simulate(th + h * e * max(1, abs(th[i])), u_arr, False)[0]
+                            - m._simulate(th - h * e * max(1, abs(th[i])), u_arr, False)[0])
+                           / (2 * h * max(1, abs(th[i]))) for i, e in enumerate(np.eye(th.size))])
+    np.testing.assert_allclose(J, num, rtol=1e-4, atol=1e-5)
+
+
+def test_sample_weight_zero_samples_do_not_enter_the_fit() -> None:
+    u = np.column_stack([_inputs(700, 41), _inputs(700, 42)])
+    w = lfilter([0, 0.5, 0.2], [1, -1.2, 0.5], u[:, 0]) + lfilter([0, 0.4], [1, -0.6], u[:, 1])
+    y = np.clip(w + 0.05 * np.random.default_rng(4).standard_normal(700), -0.7, np.inf)
+    weights = np.ones(700)
+    weights[500:] = 0.0
+    model = wiener(Saturation(-0.7), nb=2, nf=2, nk=1)
+    a = HammersteinWiener(**model.get_params()).fit(u, y, sample_weight=weights)
+    bad = y.copy()
+    bad[500:] = 50.0  # whatever the held-out samples say
+    b = HammersteinWiener(**model.get_params()).fit(u, bad, sample_weight=weights)
+    np.testing.assert_array_equal(a.b_, b.b_)
+    np.testing.assert_array_equal(a.f_, b.f_)
+    # the same fit as on the first 500 samples alone
+    c = HammersteinWiener(**model.get_params()).fit(u[:500], y[:500])
+    np.testing.assert_allclose(a.b_, c.b_, atol=1e-6)
+    np.testing.assert_allclose(a.f_, c.f_, atol=1e-6)
+    with pytest.raises(ValueError, match="sample_weight"):
+        HammersteinWiener().fit(u, y, sample_weight=np.zeros(700))
+    with pytest.raises(ValueError, match="sample_weight"):
+        HammersteinWiener().fit(u, y, sample_weight=np.ones(10))
+
+
+def test_select_by_holdout_finds_the_delay_and_refits_on_all() -> None:
+    u = np.column_stack([_inputs(800, 43), _inputs(800, 44)])
+    g0 = np.tanh(u[:, 0])
+    w = lfilter([0.6, 0.2], [1, -0.5], g0) + lfilter([0, 0.4], [1, -0.6], u[:, 1])  # input 0 acts at once
+    y = np.clip(w + 0.02 * np.random.default_rng(5).standard_normal(800), -0.6, np.inf)
+    cands = [HammersteinWiener([PiecewiseLinear(6), Identity()], Saturation(-0.6), nb=2, nf=1, nk=nk, max_nfev=60)
+             for nk in (1, (0, 1))]
+    best, scores = select_by_holdout(cands, u, y)
+    assert len(scores) == 2 and scores[1] > scores[0] + 5.0
+    assert best.nk == (0, 1) and best.b_[0, 0] != 0.0   # the direct term
+    direct = HammersteinWiener(**cands[1].get_params()).fit(u, y)
+    np.testing.assert_allclose(best.b_, direct.b_, rtol=1e-9, atol=1e-12)  # the winner refitted on all samples
+    assert not hasattr(cands[1], "b_")  # templates stay unfitted
+    with pytest.raises(ValueError, match="holdout"):
+        select_by_holdout(cands, u, y, holdout=1.0)
+
+
+def test_unit_gain_moves_the_gain_into_the_block() -> None:
+    u = np.column_stack([_inputs(800, 45), _inputs(800, 46)])
+    g1 = np.tanh(u[:, 0])
+    y = lfilter([0, 0.6], [1, -0.8], g1) + lfilter([0, 0.2], [1, -0.5], u[:, 1])  # static gains 3 and 0.4
+    m = hammerstein([PiecewiseLinear(8), Identity()], nb=1, nf=1, nk=1, unit_gain=True).fit(u, y)
+    gains = m.b_.sum(axis=1) / m.f_.sum(axis=1)
+    assert gains[0] == pytest.approx(1.0, abs=1e-9)        # the free block's B/F: unit static gain
+    assert gains[1] == pytest.approx(0.4, abs=1e-2)        # the identity input keeps its gain
+    x = np.linspace(-1.5, 1.5, 7)
+    np.testing.assert_allclose(m.input_blocks_[0].value(x, m.input_params_[0]), 3.0 * np.tanh(x), atol=0.05)
+    assert m.cost_ < 1e-3 * np.var(y)   # up to the piecewise-linear approximation of tanh
+
+
+def test_steady_start_fits_a_record_that_starts_at_rest() -> None:
+    u = np.column_stack([_inputs(600, 47), _inputs(600, 48)])
+    u[:, 0] += 1.5   # the record starts far from zero
+    pre = np.vstack([np.repeat(u[:1], 400, axis=0), u])   # the system was at rest at u(0) before the record
+    w = lfilter([0, 0.1], [1, -0.95], pre[:, 0]) + lfilter([0, 0.4], [1, -0.6], pre[:, 1])
+    y = w[400:]
+    zero = HammersteinWiener(nb=1, nf=1, nk=1).fit(u, y)
+    steady = HammersteinWiener(nb=1, nf=1, nk=1, initial="steady").fit(u, y)
+    assert steady.cost_ < 1e-8 and zero.cost_ > 1e-3   # zero start: a transient the data never had
+    np.testing.assert_allclose(steady.f_[:, 1], [-0.95, -0.6], atol=1e-4)
+    with pytest.raises(ValueError, match="initial"):
+        HammersteinWiener(initial="guess").fit(u, y)
+
+
+def test_initial_state_through_the_saturation(fitted) -> None:
+    m, u, _ = fitted
+    from ident.linear._statespace import simulate_ss
+
+    v = m.transform_inputs(u)
+    x_ss = np.linalg.solve(np.eye(m.n_states_) - m.A_, m.B_ @ v[0]) * 1.3   # a state off zero and off rest
+    y = m.predict(u, x0=x_ss)
+    x_hat = m.initial_state(u, y)
+    y_hat = m.predict(u, x0=x_hat)
+    np.testing.assert_allclose(y_hat, y, atol=1e-6)
+    assert simulate_ss(m.A_, m.B_, m.C_, m.D_, v, x_hat)[0].shape == (len(u), 1)

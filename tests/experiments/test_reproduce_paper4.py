@@ -1,0 +1,72 @@
+"""Paper IV reproduction: the validation figure is the simulation carried on from the estimation data, M-V's choice
+is the best hold-out candidate, and no validation output reaches any fit or choice."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from experiments import reproduce_paper4 as rp4
+from ident.metrics import fit_percent
+from ident.plant_data import PAPER4_N_SAMPLES, whtc_dataset
+
+MV_SMALL = {"nk": (1, 0), "smoothness": (10.0,)}
+
+
+@pytest.fixture(scope="module")
+def data():
+    return whtc_dataset(seed=0)[:PAPER4_N_SAMPLES]
+
+
+@pytest.fixture(scope="module")
+def fitted(data):
+    return rp4.fit_models(data, models=("M-II", "M-V"), mv=MV_SMALL)
+
+
+def test_validation_fit_is_the_continued_simulation(fitted) -> None:
+    rows, sims = fitted
+    ye, yv = sims["y_est"][:, None], sims["y_val"][:, None]
+    for row in rows:
+        model = sims["models"][row["model"]]
+        y_run = model.predict(np.vstack([sims["u_est"][row["model"]], sims["u_val"][row["model"]]]), y0=ye)
+        assert row["fit_validation"] == pytest.approx(float(fit_percent(yv, y_run[len(ye):, :1])), abs=1e-9)
+        np.testing.assert_allclose(sims[row["model"]][1], y_run[len(ye):, 0])
+        assert row["published"]["fit_validation"] == rp4.PUBLISHED[row["model"]][2]
+        assert np.isfinite(row["fit_validation_x0_from_validation"])
+
+
+def test_mv_choice_is_the_best_holdout_candidate(fitted) -> None:
+    rows, sims = fitted
+    mv = next(r for r in rows if r["model"] == "M-V")
+    assert list(mv["holdout_fit"]) == ["nk=1 smoothness=10", "nk=0 smoothness=10"]
+    best = max(mv["holdout_fit"], key=mv["holdout_fit"].get)
+    assert mv["chosen"] == best
+    model = sims["models"]["M-V"]
+    assert model.nk == (1 if best.startswith("nk=1") else 0) and model.smoothness == 10.0
+    assert mv["n_params"] == 48   # knot values of 9, 5, 9, 5 segments (32) and 4 x (nb + nf) = 16
+
+
+def test_no_validation_output_enters_fit_or_choice(data, fitted) -> None:
+    rows, sims = fitted
+    y = data.y.copy()
+    y[900:, 0] = y[900:, 0][::-1] * 3.0 + 100.0   # different validation outputs, same statistics of the estimation part
+    rows2, sims2 = rp4.fit_models(data.with_signals(y=y), models=("M-II", "M-V"), mv=MV_SMALL)
+    for a, b in zip(rows, rows2):
+        assert a["fit_estimation"] == b["fit_estimation"]
+        if a["model"] == "M-V":
+            assert a["holdout_fit"] == b["holdout_fit"] and a["chosen"] == b["chosen"]
+        np.testing.assert_array_equal(sims["models"][a["model"]].b_, sims2["models"][b["model"]].b_)
+        assert a["fit_validation"] != b["fit_validation"]
+
+
+def test_main_writes_the_table(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)  # the run folder goes to ./runs
+    monkeypatch.setattr(rp4, "MV_DEFAULT", {**rp4.MV_DEFAULT, "nk": (1,), "smoothness": (10.0,)})
+    out = tmp_path / "r.json"
+    assert rp4.main(["--no-plots", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert [r["model"] for r in res["rows"]] == list(rp4.MODELS)
+    for r in res["rows"]:
+        assert {"fit_estimation", "fit_validation", "fit_validation_x0_from_validation", "mse_validation"} <= set(r)
+    assert res["protocol"]["n_estimation"] == 900 and "carried" in res["protocol"]["fit"]
