@@ -1,6 +1,6 @@
 """Throughput of the environments (and of RPEM), measured in one process against Gymnasium's Pendulum-v1.
 
-``python -m experiments.benchmark_speed [--json PATH] [--num-envs 1024] [--seconds 3]`` (``make bench``).
+``python -m experiments.benchmark_speed [--json PATH] [--num-envs 1024] [--seconds 2] [--rounds 3]`` (``make bench``).
 
 Reported:
 * ``env_steps_per_s``: ``gymnasium.make("scr_env/UreaSCR-v0")`` with its default wrappers, constant action,
@@ -8,7 +8,10 @@ Reported:
 * ``pendulum_steps_per_s``: ``gymnasium.make("Pendulum-v1")`` the same way (the reference for Python overhead);
 * ``vector_env_steps_per_s``: env-steps per second of the native vector environment with ``num_envs`` plants;
 * ``rpem_samples_per_s`` (and the full degree-2 model) from :mod:`experiments.benchmark_rpem`, when available.
-Everything is timed after a warm-up (JIT compilation excluded) for about ``--seconds`` each.
+Everything is timed after a warm-up (JIT compilation excluded). The three figures are measured in ``--rounds``
+interleaved rounds of about ``--seconds`` each (Pendulum, single, vector, Pendulum, ...) and each is the median of
+its rounds, so a change of the machine's state during the run (other load, clock) affects the reference and the
+environments alike; every round's figure is in ``rounds``.
 """
 from __future__ import annotations
 
@@ -71,14 +74,19 @@ def _time_vector(num_envs: int, seconds: float) -> float:
     return steps / (now - start)
 
 
-def measure(num_envs: int = 1024, seconds: float = 3.0, rpem: bool = True) -> dict[str, Any]:
+def measure(num_envs: int = 1024, seconds: float = 2.0, rpem: bool = True, rounds: int = 3) -> dict[str, Any]:
     """All throughput figures, as a dict (see the module docstring)."""
-    result: dict[str, Any] = {
-        "pendulum_steps_per_s": _time_single(lambda: gym.make("Pendulum-v1"), seconds),
-        "env_steps_per_s": _time_single(lambda: gym.make("scr_env/UreaSCR-v0"), seconds),
-        "num_envs": num_envs,
-        "vector_env_steps_per_s": _time_vector(num_envs, seconds),
-    }
+    if rounds < 1:
+        raise ValueError(f"rounds must be >= 1, got {rounds!r}")
+    samples: dict[str, list[float]] = {"pendulum_steps_per_s": [], "env_steps_per_s": [],
+                                       "vector_env_steps_per_s": []}
+    for _ in range(rounds):
+        samples["pendulum_steps_per_s"].append(_time_single(lambda: gym.make("Pendulum-v1"), seconds))
+        samples["env_steps_per_s"].append(_time_single(lambda: gym.make("scr_env/UreaSCR-v0"), seconds))
+        samples["vector_env_steps_per_s"].append(_time_vector(num_envs, seconds))
+    result: dict[str, Any] = {key: float(np.median(v)) for key, v in samples.items()}
+    result["num_envs"] = num_envs
+    result["rounds"] = samples
     result["single_vs_pendulum"] = result["env_steps_per_s"] / result["pendulum_steps_per_s"]
     result["vector_vs_pendulum"] = result["vector_env_steps_per_s"] / result["pendulum_steps_per_s"]
     if rpem:
@@ -97,12 +105,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", help="write the figures to this JSON file")
     ap.add_argument("--num-envs", type=int, default=1024, help="plants in the vector environment (default 1024)")
-    ap.add_argument("--seconds", type=float, default=3.0, help="timing window per figure [s] (default 3)")
+    ap.add_argument("--seconds", type=float, default=2.0, help="timing window per figure and round [s] (default 2)")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved measuring rounds, median reported (default 3)")
     ap.add_argument("--no-rpem", action="store_true", help="skip the RPEM figures")
     args = ap.parse_args(argv)
-    if args.num_envs < 1 or args.seconds <= 0:
-        ap.error("--num-envs must be >= 1 and --seconds > 0")
-    r = measure(args.num_envs, args.seconds, rpem=not args.no_rpem)
+    if args.num_envs < 1 or args.seconds <= 0 or args.rounds < 1:
+        ap.error("--num-envs and --rounds must be >= 1 and --seconds > 0")
+    r = measure(args.num_envs, args.seconds, rpem=not args.no_rpem, rounds=args.rounds)
     print(f"Pendulum-v1 (gym.make)        {r['pendulum_steps_per_s']:>12,.0f} steps/s")
     print(f"UreaSCR-v0 single (gym.make)  {r['env_steps_per_s']:>12,.0f} steps/s   "
           f"{r['single_vs_pendulum']:.2f}x Pendulum (goal 0.5x)")
