@@ -12,6 +12,7 @@ identify-then-control study: ``python -m experiments.identify_then_control`` (ab
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -80,12 +81,12 @@ def main(argv: list[str] | None = None) -> dict:
              "mean / peak NH3 slip [ppm] | AdBlue [g] | work [kWh] |", "|---|---|---|---|---|---|---|"]
     ranges = ["", "SCR inlet signals (min / mean / max) against the thesis' WHTC data (Paper III, Table 1):", "",
               "| cycle | inlet NOx [ppm] | exhaust flow [mol/s] | inlet temperature [K] |", "|---|---|---|---|"]
+    figures = {}
     for cycle, limit in (("whtc", 0.46), ("whsc", 0.40)):
         tr = rollout(feedforward_dosing, cycle=cycle, seed=args.seed)
         k = tr.kpis
         results["cycles"][cycle] = k
-        fig_path = out / f"{cycle}_trajectory.png"
-        _figure(tr, fig_path)
+        figures[out / f"{cycle}_trajectory.png"] = tr
         lines.append(f"| {cycle.upper()} | {100 * k['nox_conversion']:.1f} % | {k['engine_out_nox_g_per_kwh']:.2f} | "
                      f"{k['tailpipe_nox_g_per_kwh']:.3f} ({limit}) | {k['mean_nh3_slip_ppm']:.1f} / "
                      f"{k['peak_nh3_slip_ppm']:.0f} | {k['adblue_g']:.0f} | {k['engine_work_kwh']:.1f} |")
@@ -100,8 +101,8 @@ def main(argv: list[str] | None = None) -> dict:
             for name in ("inlet_nox_ppm", "exhaust_flow_mol_s", "inlet_temperature_k")}
     ranges.append("| thesis WHTC | 0 to ~2500 (mean 619) | 0 to ~12 | 450 to 700 (mean 534) |")
     lines += ranges
-    lines += ["", "Figures: " + ", ".join(f"`{p.name}`" for p in sorted(out.glob("*.png")))]
-    for p in sorted(out.glob("*.png")):
+    lines += ["", "Figures: " + ", ".join(f"`{p.name}`" for p in sorted(figures))]
+    for p in sorted(figures):
         lines += ["", f"![{p.stem}]({p.name})"]
     print("\n".join(lines))
     if not args.overview_only:
@@ -116,10 +117,14 @@ def main(argv: list[str] | None = None) -> dict:
                                                                                         "## Identify-then-control")
         lines += ["", text]
     report = out / "report.md"
-    report.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    print(f"\nreport written to {report} ({time.perf_counter() - start:.1f} s)")
+    # the report is the last thing written: everything printed first (a log of the run is older than the report)
+    print(f"\nwriting the report: {report} (figures beside it; {time.perf_counter() - start:.1f} s)", flush=True)
+    sys.stderr.flush()
     if args.json:
         write_json(args.json, results)
+    for path, tr in figures.items():
+        _figure(tr, path)
+    report.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return results
 
 
