@@ -36,3 +36,12 @@ def write_json(path: str | Path, obj: Any) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(obj, indent=2, default=_default), encoding="utf-8")
     return path
+
+
+def save_results(out: Path, filename: str, doc: Any, json_path: str | Path | None = None) -> Path:
+    """Write ``doc`` as ``out/filename`` (the run folder's record) and, if given, also to ``json_path`` (the
+    ``--json`` argument of every experiment); return the run-folder file."""
+    path = write_json(Path(out) / filename, doc)
+    if json_path is not None:
+        write_json(json_path, doc)
+    return path

@@ -49,7 +49,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_results
 
 KPI_KEYS = ("nox_conversion", "engine_out_nox_g_per_kwh", "tailpipe_nox_g_per_kwh", "mean_nh3_slip_ppm",
             "peak_nh3_slip_ppm", "adblue_g", "nh3_slip_g", "engine_work_kwh")
@@ -526,9 +526,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     (out / "table.txt").write_text(txt + "\n" + verdict + "\n", encoding="utf-8")
     np.savetxt(out / "rpem_history.csv", hist, delimiter=",", header="cycle,time_s,d_cap,d_act", comments="")
     plot(doc, hist, out)
-    write_json(out / "adaptive_ageing.json", doc)
-    if args.json is not None:
-        write_json(args.json, doc)
+    save_results(out, "adaptive_ageing.json", doc, args.json)
     print(f"wrote {out} in {doc['wall_time_s']:.0f} s")
     return doc
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_results
 from experiments.sweep import add_arguments, from_args, run_sweep
 
 #: the calibrated argument of each controller and the values tried by default
@@ -108,9 +108,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                   f"{t['max_mean_nh3_slip_ppm']:6.2f}  {t['solver_failures']:.0f}")
         print(f"  chosen: {res['value']}")
     doc["wall_time_s"] = time.perf_counter() - t0
-    write_json(out / "calibrate_controllers.json", doc)
-    if args.json is not None:
-        write_json(args.json, doc)
+    save_results(out, "calibrate_controllers.json", doc, args.json)
     print(f"wrote {out} in {doc['wall_time_s']:.0f} s")
     return doc
 

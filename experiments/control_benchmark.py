@@ -21,7 +21,7 @@ import numpy as np
 
 from control.baselines import FeedforwardPI, LookupTableDosing
 from control.evaluation import EpisodeResult, comparison_table, evaluate
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_results
 
 CORE = ("lookup_table", "pi", "mpc_identified", "mpc_oracle")
 RL_NAMES = ("ppo", "sac")
@@ -238,9 +238,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         plot(results, c, out / f"closed_loop_{c}.png")
     doc["wall_time_s"] = time.perf_counter() - t_start
     (out / "table.txt").write_text(table + "\n", encoding="utf-8")
-    write_json(out / "control_benchmark.json", doc)
-    if args.json is not None:
-        write_json(args.json, doc)
+    save_results(out, "control_benchmark.json", doc, args.json)
     print(f"wrote {out} in {doc['wall_time_s']:.0f} s")
     return doc
 

@@ -66,6 +66,7 @@ from ident.io import load_model, register_model, save_model
 from ident.linear import OutputError
 from ident.linear._statespace import _per_input, simulate_ss, tf_to_ss, validate_fit_data
 from ident.linear.oe import _KAPPA_MAX, poly_from_reflection, reflection_from_poly, stabilize_poly
+from ident.metrics import fit_percent
 
 __all__ = ["HammersteinWiener", "hammerstein", "select_by_holdout", "wiener"]
 
@@ -284,7 +285,7 @@ class HammersteinWiener:
                     keep = use[n_in:n_end]
                     y_hat = inner.predict(u_all[:n_end], y0=y_all[:n_in])[n_in:, 0][keep]
                     y_ho = y_all[n_in:n_end, 0][keep]
-                    score = 100.0 * (1.0 - np.linalg.norm(y_ho - y_hat) / np.linalg.norm(y_ho - y_ho.mean()))
+                    score = fit_percent(y_ho, y_hat)
                 except (ValueError, np.linalg.LinAlgError):
                     score = -np.inf
                 scores[float(lam)] = float(score) if np.isfinite(score) else -np.inf
@@ -694,7 +695,7 @@ def select_by_holdout(candidates: Sequence[HammersteinWiener], u: Any, y: Any, h
         try:
             m = HammersteinWiener(**cand.get_params()).fit(u_arr, y_arr, sample_weight=w)
             y_hat = m.predict(u_arr, y0=y_arr[:n_in])[n_in:, 0]
-            score = 100.0 * (1.0 - np.linalg.norm(y_ho - y_hat) / np.linalg.norm(y_ho - y_ho.mean()))
+            score = fit_percent(y_ho, y_hat)
         except (ValueError, np.linalg.LinAlgError):
             score = -np.inf
         scores.append(float(score) if np.isfinite(score) else -np.inf)

@@ -39,6 +39,16 @@ def _inputs(n: int, seed: int, lo: float = -2.0, hi: float = 2.0) -> np.ndarray:
     return RandomSteps(lo, hi, 0.3, 2.0).generate(n, 0.1, seed)
 
 
+def _assert_exact_jacobian(m, u_arr: np.ndarray, th: np.ndarray) -> None:
+    """The model's analytic simulation Jacobian at ``th`` equals central finite differences."""
+    _, J = m._simulate(th, u_arr, True)
+    h = 1e-6
+    num = np.column_stack([(m._simulate(th + h * e * max(1, abs(th[i])), u_arr, False)[0]
+                            - m._simulate(th - h * e * max(1, abs(th[i])), u_arr, False)[0])
+                           / (2 * h * max(1, abs(th[i]))) for i, e in enumerate(np.eye(th.size))])
+    np.testing.assert_allclose(J, num, rtol=1e-4, atol=1e-5)
+
+
 @pytest.mark.parametrize("block,x", BLOCKS, ids=lambda b: type(b).__name__)
 def test_block_derivatives_casadi_and_dict(block, x) -> None:
     import casadi as ca
@@ -71,12 +81,7 @@ def test_exact_jacobian_matches_finite_differences() -> None:
                           Saturation(-0.8, estimate=True), nb=(2, 1), nf=(2, 1))
     u_arr, _, th = m._prepare(u, y)
     th = th + 0.05 * rng.standard_normal(th.size)
-    _, J = m._simulate(th, u_arr, True)
-    h = 1e-6
-    num = np.column_stack([(m._simulate(th + h * e * max(1, abs(th[i])), u_arr, False)[0]
-                            - m._simulate(th - h * e * max(1, abs(th[i])), u_arr, False)[0])
-                           / (2 * h * max(1, abs(th[i]))) for i, e in enumerate(np.eye(th.size))])
-    np.testing.assert_allclose(J, num, rtol=1e-4, atol=1e-5)
+    _assert_exact_jacobian(m, u_arr, th)
 
 
 def test_recovers_wiener_saturation_and_dynamics() -> None:
@@ -230,12 +235,7 @@ def test_exact_jacobian_with_unit_gain_and_steady_start(unit_gain, initial) -> N
     # the Arrhenius block cannot be rescaled by its parameter: its B/F keeps a free gain
     assert m._gain[1] is None and ((m._gain[0] is not None) == unit_gain)
     th = th + 0.05 * rng.standard_normal(th.size)
-    _, J = m._simulate(th, u_arr, True)
-    h = 1e-6
-    num = np.column_stack([(m._simulate(th + h * e * max(1, abs(th[i])), u_arr, False)[0]
-                            - m._simulate(th - h * e * max(1, abs(th[i])), u_arr, False)[0])
-                           / (2 * h * max(1, abs(th[i]))) for i, e in enumerate(np.eye(th.size))])
-    np.testing.assert_allclose(J, num, rtol=1e-4, atol=1e-5)
+    _assert_exact_jacobian(m, u_arr, th)
 
 
 def test_sample_weight_zero_samples_do_not_enter_the_fit() -> None:
