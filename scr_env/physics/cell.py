@@ -119,17 +119,17 @@ def arrhenius_constants(temperature_k, f_o2_std, f_o2_ox, a_ads, a_des, e_des, t
     Converts the literature units (C in mol/m3) to mole fractions with the ideal gas at 1 atm:
     C = y P / (R T). Returns (k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2, k_ox, k_ox_no, k_n2o).
     """
-    rt = 8.314462618 * temperature_k  # J/mol; R from CODATA 2018
-    c_total = 101325.0 / rt  # mol/m3 at 1 atm (scr_env.constants.ATMOSPHERIC_PRESSURE_PA)
+    inv_rt = 1.0 / (8.314462618 * temperature_k)  # mol/J; R from CODATA 2018 (one division, then products)
+    c_total = 101325.0 * inv_rt  # mol/m3 at 1 atm (scr_env.constants.ATMOSPHERIC_PRESSURE_PA)
     k_ads = a_ads * c_total
-    k_des = a_des * exp(-e_des / rt)
-    e_des_gamma = temkin_gamma * e_des / rt
-    k_std = a_std * exp(-e_std / rt) * c_total * f_o2_std
-    k_fast = a_fast * exp(-e_fast / rt) * c_total * c_total
-    k_no2 = a_no2 * exp(-e_no2 / rt) * c_total
-    k_ox = a_ox * exp(-e_ox / rt) * f_o2_ox
-    k_ox_no = a_ox_no * exp(-e_ox_no / rt) * f_o2_ox
-    k_n2o = a_n2o * exp(-e_n2o / rt) * c_total
+    k_des = a_des * exp(-e_des * inv_rt)
+    e_des_gamma = temkin_gamma * e_des * inv_rt
+    k_std = a_std * exp(-e_std * inv_rt) * c_total * f_o2_std
+    k_fast = a_fast * exp(-e_fast * inv_rt) * c_total * c_total
+    k_no2 = a_no2 * exp(-e_no2 * inv_rt) * c_total
+    k_ox = a_ox * exp(-e_ox * inv_rt) * f_o2_ox
+    k_ox_no = a_ox_no * exp(-e_ox_no * inv_rt) * f_o2_ox
+    k_n2o = a_n2o * exp(-e_n2o * inv_rt) * c_total
     return k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2, k_ox, k_ox_no, k_n2o
 
 

@@ -110,9 +110,12 @@ def test_implicit_step_equals_kernel_step(steps, i):
     dt = DTS[i % len(DTS)]
     x_next, y = (np.asarray(v).ravel() for v in steps[dt](x, u))
     x_ref, y_ref = _kernel_step(x, u, dt)
-    np.testing.assert_allclose(x_next[:N], x_ref[:N], rtol=0, atol=1e-8)
+    # CasADi solves the implicit step exactly; the kernel stops at 1e-7 of the nitrogen flux and ends on the
+    # conservative state (scr_env.physics.kernel._FLUX_TOL): measured within 4e-7 in coverage and 1.3e-6 relative in
+    # the outlets over these samples, so the bounds are 1e-6 and 1e-5
+    np.testing.assert_allclose(x_next[:N], x_ref[:N], rtol=0, atol=1e-6)
     np.testing.assert_allclose(x_next[N:], x_ref[N:], rtol=0, atol=1e-6)
-    np.testing.assert_allclose(y[:4], y_ref[:4], rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(y[:4], y_ref[:4], rtol=1e-5, atol=1e-6)
     assert y[4] == pytest.approx(y_ref[4], abs=1e-6)
 
 
