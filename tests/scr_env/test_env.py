@@ -70,7 +70,7 @@ def test_whtc_episode_truncates_at_its_end_with_kpis_and_nitrogen_balance() -> N
     assert k["tailpipe_nox_g_per_kwh"] < k["engine_out_nox_g_per_kwh"]
     expected_adblue_g = 0.5 * (float(action[0]) + 1.0) * 3.0 * 1800.0  # (a + 1) / 2 * 3 g/s over 1800 s
     assert k["adblue_g"] == pytest.approx(expected_adblue_g, rel=1e-12)
-    assert abs(k["nitrogen_balance_error"]) < 1e-6
+    assert abs(k["nitrogen_balance_error"]) < 1e-10  # measured 2e-13: closes to rounding by construction
     with pytest.raises(RuntimeError, match="reset"):
         env.step(action)
 

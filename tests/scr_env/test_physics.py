@@ -105,7 +105,7 @@ def test_temperatures_stay_between_ambient_and_hottest_source(temps, u, dt):
 
 
 def test_hour_of_varying_inputs_closes_the_nitrogen_balance():
-    """3600 steps of 1 s with randomly varying inputs: the cumulative balance closes to 1e-6 relative."""
+    """3600 steps of 1 s with randomly varying inputs: the cumulative balance closes to rounding (1e-12 relative)."""
     rng = np.random.default_rng(20240611)
     n_steps, dt = 3600, 1.0
     t = np.arange(n_steps) * dt
@@ -131,7 +131,9 @@ def test_hour_of_varying_inputs_closes_the_nitrogen_balance():
     stored = out[0, O["nh3_stored_mol"]]
     assert stored > 0.0  # the test exercises storage, not a trivially empty catalyst
     assert total_in > 1.0  # mol
-    assert abs(total_in - total_out - stored) <= 1e-6 * total_in
+    # the step ends on the conservative state (kernel module docstring): the balance closes to rounding (measured
+    # 1e-15), not merely to the solver tolerance
+    assert abs(total_in - total_out - stored) <= 1e-12 * total_in
 
 
 @pytest.mark.parametrize("severity", [0.0, 1.0])
