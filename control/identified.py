@@ -54,21 +54,17 @@ class StorageGreyBox:
         self.nh3_weight = nh3_weight
 
     # --- the model, symbolic in the parameters ------------------------------------------------------------------
-    def _step_expr(self, x: ca.SX, u: ca.SX, p: ca.SX) -> tuple[ca.SX, ca.SX]:
-        nom, n, dt = _NOMINAL, int(self.n_cells), float(self.dt)
+    def _kinetics(self, t: ca.SX, u: ca.SX, p: ca.SX) -> tuple:
+        """Inlet mole fractions and the gas balance of a cell at solid temperature ``t`` [K] under inputs ``u``:
+        ``(y_nh3_in, y_nox_in, gas)`` with ``gas(theta, y_nh3_in, y_nox_in) -> (dtheta/dt, y_nh3_out, y_nox_out)``."""
+        nom, n = _NOMINAL, int(self.n_cells)
         omega = nom["omega_mol"] * ca.exp(p[0])
         gamma = nom["gamma"] * ca.exp(p[4])
         e_des = nom["e_des"] * (1 + p[3])
         e_scr = nom["e_scr"] * (1 + p[6])
-        heat = nom["heat_j_k"] * ca.exp(p[8])
         t50 = nom["t50_k"] + 10.0 * p[9]
         e_ox = nom["e_ox"] * (1 + p[10])
         nox_ppm, urea_g_min, t_in, flow = u[0], u[1], u[2], ca.fmax(u[3], 1e-3)
-        # the state enters clipped to its physical range: identical on it (identification never leaves it), but an
-        # NLP iterate outside the box (an SQP step from an unsolved QP) must not reach the pole of the gas balance
-        # at theta > 1 or 1 / T at T <= 0, whose NaN derivatives stop the solver ("NaN detected for grad_f_x")
-        t_old = ca.fmax(x[n], _T_MIN_K)
-        t = (heat * t_old + dt * flow * _CP_MOL * ca.fmax(t_in, _T_MIN_K)) / (heat + dt * flow * _CP_MOL)
         c_tot = 101325.0 / (R_GAS * t)
         k_ads = nom["a_ads"] * ca.exp(p[1]) * c_tot
         k_des = nom["a_des"] * ca.exp(p[2]) * ca.exp(-e_des / (R_GAS * t))
@@ -79,23 +75,61 @@ class StorageGreyBox:
         y_nh3 = eta * ca.fmax(urea_g_min, 0) / 60.0 / 60.06 * 2.0 / flow
         y_nox = ca.fmax(nox_ppm, 0) * 1e-6
         q = flow * n / omega
+
+        def gas(theta, y_nh3_in, y_nox_in):
+            r_des = k_des * ca.exp(eg * theta) * theta
+            yn = (q * y_nh3_in + r_des) / (q + k_ads * (1 - theta))
+            yx = q * y_nox_in / (q + k_scr * theta)
+            g = k_ads * yn * (1 - theta) - r_des - k_scr * theta * yx - k_ox * theta
+            return g, yn, yx
+
+        return y_nh3, y_nox, gas
+
+    def _temperature(self, t_old: ca.SX, u: ca.SX, p: ca.SX, dt: float) -> ca.SX:
+        """Solid temperature after ``dt`` [s] (implicit Euler of the linear heat balance, exact form)."""
+        heat = _NOMINAL["heat_j_k"] * ca.exp(p[8])
+        flow = ca.fmax(u[3], 1e-3)
+        return (heat * t_old + dt * flow * _CP_MOL * ca.fmax(u[2], _T_MIN_K)) / (heat + dt * flow * _CP_MOL)
+
+    def _step_expr(self, x: ca.SX, u: ca.SX, p: ca.SX) -> tuple[ca.SX, ca.SX]:
+        n, dt = int(self.n_cells), float(self.dt)
+        # the state enters clipped to its physical range: identical on it (identification never leaves it), but an
+        # NLP iterate outside the box (an SQP step from an unsolved QP) must not reach the pole of the gas balance
+        # at theta > 1 or 1 / T at T <= 0, whose NaN derivatives stop the solver ("NaN detected for grad_f_x")
+        t = self._temperature(ca.fmax(x[n], _T_MIN_K), u, p, dt)
+        y_nh3, y_nox, gas = self._kinetics(t, u, p)
         th = ca.SX.sym("th")
         xs = []
         for j in range(n):
-            def gas(theta, y_nh3=y_nh3, y_nox=y_nox):
-                r_des = k_des * ca.exp(eg * theta) * theta
-                yn = (q * y_nh3 + r_des) / (q + k_ads * (1 - theta))
-                yx = q * y_nox / (q + k_scr * theta)
-                g = k_ads * yn * (1 - theta) - r_des - k_scr * theta * yx - k_ox * theta
-                return g, yn, yx
-            g_th = gas(th)[0]
+            g_th = gas(th, y_nh3, y_nox)[0]
             th0 = ca.fmin(ca.fmax(x[j], 0.0), 1.0)
             dg = ca.substitute(ca.jacobian(g_th, th), th, th0)
-            g0 = gas(th0)[0]
+            g0 = gas(th0, y_nh3, y_nox)[0]
             th_new = ca.fmin(ca.fmax(th0 + dt * g0 / ca.fmax(1 - dt * dg, 1.0), 0.0), 1.0)
             xs.append(th_new)
-            _, y_nh3, y_nox = gas(th_new)
+            _, y_nh3, y_nox = gas(th_new, y_nh3, y_nox)
         return ca.vertcat(*xs, t), ca.vertcat(y_nox * 1e6, y_nh3 * 1e6)
+
+    def implicit_stage(self, x_next: ca.SX, x: ca.SX, u: ca.SX, h: float) -> tuple[ca.SX, ca.SX]:
+        """The model over a stage of ``h`` seconds (input held) as smooth implicit-Euler equations, for an NLP whose
+        variables include the end state ``x_next``: ``(residual, y)``, residual zero when ``x_next`` is the
+        implicit-Euler end state of ``x`` (coverage rows in coverage units, the temperature row in units of
+        100 K), y = [tailpipe NOx ppm, NH3 ppm] at the end of the stage.
+
+        Unlike :meth:`to_casadi`'s explicit step (a linearly implicit Euler step clipped to [0, 1]), these
+        equations have no kinks: the NLP's bounds keep the coverage in [0, 1], and an SQP method converges on them
+        where the clipped step's zero gradients make it stall."""
+        if not hasattr(self, "params_"):
+            raise RuntimeError("StorageGreyBox is not fitted yet: call fit(...) first")
+        n, p = int(self.n_cells), ca.DM(self.params_)
+        t_next = x_next[n]
+        res_t = (t_next - self._temperature(x[n], u, p, float(h))) / 100.0
+        y_nh3, y_nox, gas = self._kinetics(t_next, u, p)
+        res = []
+        for j in range(n):
+            g, y_nh3, y_nox = gas(x_next[j], y_nh3, y_nox)
+            res.append(x_next[j] - x[j] - h * g)
+        return ca.vertcat(*res, res_t), ca.vertcat(y_nox * 1e6, y_nh3 * 1e6)
 
     def _functions(self) -> None:
         n = int(self.n_cells)

@@ -253,6 +253,10 @@ class IdentifiedModelAdapter:
     stage_model : optional second export of the same identified model discretised at the MPC's stage length
         (continuous-time parameters, e.g. :meth:`control.identified.StorageGreyBox.from_params` with ``dt = h``):
         one step per stage keeps the NLP small; the EKF still runs ``model`` at the data's sample time.
+    implicit_stage : optional ``f(x_next, x, u, h) -> (residual, y)``, the model over a stage as implicit
+        equations in the NLP's end state (e.g. :meth:`control.identified.StorageGreyBox.implicit_stage`, on the
+        normalised inputs); used instead of ``stage_model`` / ``model`` in the NLP when given: an implicit stage
+        needs no clipping and keeps the NLP smooth. Its ``y`` holds the outputs named by ``output_indices``.
     """
 
     n_terminal_params = 0
@@ -264,7 +268,8 @@ class IdentifiedModelAdapter:
                  measured_output: int = 2, process_noise: float | np.ndarray = 1e-3,
                  measurement_noise: float = 1e-2, state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
                  initial_state: Callable[[np.ndarray], np.ndarray] | None = None, model_dt: float = 0.5,
-                 terminal_cost: Callable[[Any], Any] | None = None, stage_model: Any = None) -> None:
+                 terminal_cost: Callable[[Any], Any] | None = None, stage_model: Any = None,
+                 implicit_stage: Callable[[Any, Any, Any, float], tuple[Any, Any]] | None = None) -> None:
         self.model = model
         self.input_mean = input_mean
         self.input_scale = input_scale
@@ -280,6 +285,7 @@ class IdentifiedModelAdapter:
         self.model_dt = model_dt
         self.terminal_cost_fn = terminal_cost
         self.stage_model = stage_model
+        self.implicit_stage = implicit_stage
         from control.estimation import ExtendedKalmanFilter
 
         self.step_ = model.to_casadi()
@@ -310,10 +316,15 @@ class IdentifiedModelAdapter:
 
     def residual(self, x_next: Any, x: Any, u: Any, d: Any, p: Any, h: float) -> Any:
         self._h = h
+        if self.implicit_stage is not None:
+            return self.implicit_stage(x_next, x, ca.vertcat(*self._u_norm(u, d)), h)[0]
         return x_next - self._simulate(x, u, d, h)[0]
 
     def outputs(self, x_next: Any, x: Any, u: Any, d: Any, p: Any) -> Any:
-        y = self._simulate(x, u, d, self._h)[1]
+        if self.implicit_stage is not None:
+            y = self.implicit_stage(x_next, x, ca.vertcat(*self._u_norm(u, d)), self._h)[1]
+        else:
+            y = self._simulate(x, u, d, self._h)[1]
         i, j = self.output_indices
         return ca.vertcat(y[i] * self._ys[i] + self._ym[i], y[j] * self._ys[j] + self._ym[j])
 

@@ -168,7 +168,10 @@ class AdaptiveMPC:
         from experiments.control_benchmark import identified_mpc
         from ident.rpem.parametric import ParametricRPEM
 
-        fixed = identified_mpc(ident, quick, storage_value_g_per_mol=storage_value)
+        # explicit stages in both arms: the drift adapter re-parametrises the explicit stage model online, and the
+        # comparison is fixed versus adapted model, not one NLP formulation against another
+        fixed = identified_mpc(ident, quick, storage_value_g_per_mol=storage_value, implicit=False,
+                          preview=False)
         base = fixed.model
         stage_dt = float(ident["dt"]) * fixed.stage_steps
         self.adapter = _drift_adapter_class()(base, ident, stage_dt, ekf_refresh)
@@ -287,7 +290,8 @@ def run_fixed(ident: dict[str, Any], items: list[dict[str, Any]], quick: bool, e
     from control.evaluation import run_episode
     from experiments.control_benchmark import identified_mpc
 
-    mpc = identified_mpc(ident, quick, storage_value_g_per_mol=storage_value)
+    mpc = identified_mpc(ident, quick, storage_value_g_per_mol=storage_value, implicit=False,
+                         preview=False)  # as AdaptiveMPC's
     rows = []
     for it in items:
         t0 = time.perf_counter()
