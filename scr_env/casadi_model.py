@@ -47,7 +47,8 @@ OUTPUT_NAMES = ("tailpipe_no_ppm", "tailpipe_no2_ppm", "tailpipe_nh3_ppm", "tail
 N_INPUTS = len(INPUT_FIELDS)
 _EXP_CP = EXHAUST_MOLAR_MASS_KG_MOL * EXHAUST_HEAT_CAPACITY_J_KG_K  # J/(mol K) of exhaust, as in the kernel
 _KINETIC = slice(P["a_ads"], P["o2_order_ox"] + 1)  # packed kinetic parameters, the arguments of rate_constants
-_NEWTON_ABSTOL = 1e-14  # -, implicit-Euler residual of a cell relative to the N fed to it (kernel: 1e-14)
+_NEWTON_ABSTOL = 1e-14  # -, implicit-Euler residual of a cell relative to the N fed to it (the kernel stops at 1e-7
+# and ends on the conservative state, scr_env.physics.kernel._FLUX_TOL; the agreement test allows for that)
 _NEWTON_STEPTOL = 1e-16  # -, Newton step on the coverage (stops at the rounding floor)
 
 
