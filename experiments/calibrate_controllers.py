@@ -43,7 +43,7 @@ def _controller(kind: str, value: float, ident: dict[str, Any] | None) -> Any:
     from experiments import control_benchmark as cb
 
     if kind == "identified":
-        return cb.identified_mpc(ident, storage_value_g_per_mol=value)
+        return cb.identified_mpc(ident, storage_value_g_per_mol=value, preview=False)
     if kind == "identified_preview":
         return cb.identified_mpc(ident, storage_value_g_per_mol=value, preview=True)
     if kind == "oracle":
@@ -87,22 +87,34 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                     help="knob values to try (default: KNOBS per controller)")
     ap.add_argument("--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), help="random calibration cycles")
     ap.add_argument("--slip-target", type=float, default=SLIP_TARGET_PPM, help="mean slip bound per cycle [ppm]")
+    ap.add_argument("--ident-seeds", nargs="+", type=int, default=None,
+                    help="random cycles of the grey-box identification (default: control_benchmark.IDENT_SEEDS)")
+    ap.add_argument("--excitation", nargs=4, type=float, default=None, metavar=("LOW", "HIGH", "HOLD_MIN", "HOLD_MAX"),
+                    help="RandomSteps ANR excitation of the identification (default: control_benchmark's)")
     add_arguments(ap)
     args = ap.parse_args(argv)
     if args.workers is None:
         args.workers = 2
+    from experiments.control_benchmark import IDENT_SEEDS
+
+    if set(args.ident_seeds or IDENT_SEEDS) & set(args.seeds):
+        ap.error("--ident-seeds and --seeds must differ: calibration cycles are not identification data")
     out = run_folder("calibrate_controllers")
     t0 = time.perf_counter()
     ident = None
     if any(c.startswith("identified") for c in args.controller):
-        from experiments.control_benchmark import identify
+        from experiments import control_benchmark as cb
 
-        print("identifying the grey-box storage model (as experiments.control_benchmark) ...", flush=True)
-        ident = identify()
+        seeds = tuple(args.ident_seeds or cb.IDENT_SEEDS)
+        excitation = tuple(args.excitation or cb.IDENT_EXCITATION)
+        print(f"identifying the grey-box storage model (random cycles {seeds}, RandomSteps{excitation}) ...",
+              flush=True)
+        ident = cb.identify(seeds, excitation)
     tasks = [{"kind": c, "value": v, "seed": s, "ident": ident if c.startswith("identified") else None}
              for c in args.controller for v in (args.values or KNOBS[c][1]) for s in args.seeds]
     rows = run_sweep(episode, tasks, description="calibration episodes", **from_args(args))
-    doc: dict[str, Any] = {"slip_target_ppm": args.slip_target, "seeds": args.seeds, "rows": rows, "chosen": {}}
+    doc: dict[str, Any] = {"slip_target_ppm": args.slip_target, "seeds": args.seeds, "rows": rows, "chosen": {},
+                           "identification": None if ident is None else ident["data"]}
     for c in args.controller:
         res = choose([r for r in rows if r["controller"] == c], args.slip_target)
         doc["chosen"][c] = res

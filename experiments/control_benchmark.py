@@ -27,6 +27,9 @@ from experiments._runs import run_folder, save_results
 CORE = ("lookup_table", "pi", "mpc_identified", "mpc_oracle")
 RL_NAMES = ("ppo", "sac")
 IDENT_SEEDS = (1, 2)  # random cycles of the identification experiments (never the benchmark cycles)
+#: the identification experiment's ANR excitation: RandomSteps(low, high, min hold s, max hold s) multiplying the
+#: feedforward dose at ANR 1 (so ANR 0.1-1.7)
+IDENT_EXCITATION = (-0.9, 0.7, 10.0, 120.0)
 #: the identified-model MPC's NLP is small: SQP with CasADi's qrqp meets the 20 ms target where IPOPT's
 #: per-iteration overhead does not. No dual warm start (NonlinearMPC's default for non-IPOPT solvers: stale
 #: multipliers made the exact-Hessian QPs indefinite, qrqp pivoted for long and produced NaN steps -- the WHSC
@@ -58,14 +61,16 @@ REPORT_KEYS = ("nox_conversion", "engine_out_nox_g_per_kwh", "tailpipe_nox_g_per
                "solver_suboptimal")
 
 
-def identify(seeds: tuple[int, ...] = IDENT_SEEDS) -> dict[str, Any]:
-    """Identify the grey-box storage model from open-loop excitation data (random cycles); return its numbers."""
+def identify(seeds: tuple[int, ...] = IDENT_SEEDS,
+             excitation: tuple[float, float, float, float] = IDENT_EXCITATION) -> dict[str, Any]:
+    """Identify the grey-box storage model from open-loop excitation data (random cycles of ``seeds``, ANR
+    excitation ``RandomSteps(*excitation)``); return its numbers."""
     from control.identified import StorageGreyBox
     from ident.excitation import RandomSteps
     from ident.metrics import fit_percent
     from ident.plant_data import excitation_dataset
 
-    exc = RandomSteps(-0.9, 0.7, 10.0, 120.0)
+    exc = RandomSteps(*excitation)
     recs = [excitation_dataset("random", seed=s, base_anr=1.0, excitation=exc) for s in seeds]
     t0 = time.perf_counter()
     model = StorageGreyBox().fit([(r.u, r.y) for r in recs], None)
@@ -73,7 +78,7 @@ def identify(seeds: tuple[int, ...] = IDENT_SEEDS) -> dict[str, Any]:
     yp = model.predict(val.u)
     return {"params": model.params_.tolist(), "sensor_gains": model.sensor_gains_.tolist(), "n_cells": model.n_cells,
             "dt": model.dt, "fit_seconds": time.perf_counter() - t0, "data": f"excitation_dataset('random', seed in "
-            f"{list(seeds)}, base_anr=1.0, RandomSteps(-0.9, 0.7, 10 s, 120 s))",
+            f"{list(seeds)}, base_anr=1.0, RandomSteps{tuple(excitation)})",
             "validation_fit_percent_whtc": {n: float(fit_percent(val.y[:, i], yp[:, i]))
                                             for i, n in enumerate(("tailpipe_nox", "nh3", "sensor"))},
             "validation_rmse_ppm_whtc": {n: float(np.sqrt(np.mean((val.y[:, i] - yp[:, i]) ** 2)))

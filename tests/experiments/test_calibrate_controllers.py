@@ -28,3 +28,21 @@ def test_unknown_controller_is_named():
     with pytest.raises(ValueError, match="controller"):
         _controller("lqr", 1.0, None)
     assert set(KNOBS) == {"identified", "identified_preview", "oracle"}
+
+
+def test_identification_cycles_must_not_be_calibration_cycles(capsys):
+    from experiments.calibrate_controllers import main
+
+    with pytest.raises(SystemExit):
+        main(["--controller", "identified", "--seeds", "5", "6", "--ident-seeds", "1", "5"])
+    assert "--ident-seeds" in capsys.readouterr().err
+
+
+def test_identified_kinds_differ_only_in_the_preview():
+    from experiments.control_benchmark import IDENT_SEEDS
+
+    ident = {"params": [0.0] * 11, "sensor_gains": [0.95, 1.0], "n_cells": 2, "dt": 0.5}
+    plain, preview = _controller("identified", 50.0, ident), _controller("identified_preview", 50.0, ident)
+    assert (plain.preview, preview.preview) == (False, True)
+    assert plain.model.implicit_stage is not None and preview.model.implicit_stage is not None
+    assert 5 not in IDENT_SEEDS and 6 not in IDENT_SEEDS
