@@ -244,7 +244,11 @@ class IdentifiedModelAdapter:
         disturbance ``d = (flow mol/s, inlet T K, NOx ppm, NO2 fraction)`` (works on CasADi symbols and floats).
         Default: :func:`plant_data_inputs` (inlet NOx ppm, urea g/min, inlet T K, flow mol/s).
     output_indices : indices of (tailpipe NOx ppm, NH3 ppm) among the model outputs.
-    measured_output : index of the output the EKF corrects with (the observation's tailpipe sensor, obs[3]).
+    measured_output : index of the output the EKF corrects with (the observation's tailpipe sensor, obs[3]), or a
+        sequence of output indices read from the observation entries ``measured_obs``.
+    measured_obs : observation index of each measured output (default ``(3,)``: the tailpipe NOx sensor; with
+        ``UreaSCREnv(nh3_sensor=True)`` the NH3 sensor is obs[5]).
+    measurement_noise : scalar, or one variance per measured output (normalised units).
     process_noise, measurement_noise : EKF covariances (normalised units).
     state_bounds : (lower, upper) of the model state (NLP bounds and EKF clipping); default +/-50.
     initial_state : ``f(observation) -> x0`` at episode start (default zeros).
@@ -265,11 +269,12 @@ class IdentifiedModelAdapter:
     def __init__(self, model: Any, input_mean: Sequence[float], input_scale: Sequence[float],
                  output_mean: Sequence[float], output_scale: Sequence[float],
                  input_map: Callable[[Any, Any], list] | None = None, output_indices: tuple[int, int] = (0, 1),
-                 measured_output: int = 2, process_noise: float | np.ndarray = 1e-3,
-                 measurement_noise: float = 1e-2, state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                 measured_output: int | Sequence[int] = 2, process_noise: float | np.ndarray = 1e-3,
+                 measurement_noise: float | Sequence[float] = 1e-2, state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
                  initial_state: Callable[[np.ndarray], np.ndarray] | None = None, model_dt: float = 0.5,
                  terminal_cost: Callable[[Any], Any] | None = None, stage_model: Any = None,
-                 implicit_stage: Callable[[Any, Any, Any, float], tuple[Any, Any]] | None = None) -> None:
+                 implicit_stage: Callable[[Any, Any, Any, float], tuple[Any, Any]] | None = None,
+                 measured_obs: Sequence[int] = (3,)) -> None:
         self.model = model
         self.input_mean = input_mean
         self.input_scale = input_scale
@@ -295,7 +300,12 @@ class IdentifiedModelAdapter:
         self._ym, self._ys = np.asarray(output_mean, float), np.asarray(output_scale, float)
         bounds = state_bounds or (np.full(self.nx, -50.0), np.full(self.nx, 50.0))
         self._bounds = (np.asarray(bounds[0], float), np.asarray(bounds[1], float))
-        self.ekf_ = ExtendedKalmanFilter(self.step_, process_noise, measurement_noise, measured=[measured_output],
+        self._measured = [int(measured_output)] if np.ndim(measured_output) == 0 else [int(k) for k in measured_output]
+        self.measured_obs = tuple(int(j) for j in measured_obs)
+        if len(self.measured_obs) != len(self._measured):
+            raise ValueError(f"measured_obs must name one observation index per measured output "
+                             f"({len(self._measured)}), got {measured_obs!r}")
+        self.ekf_ = ExtendedKalmanFilter(self.step_, process_noise, measurement_noise, measured=self._measured,
                                          state_bounds=bounds)
         self._u_last: np.ndarray | None = None
 
@@ -335,7 +345,11 @@ class IdentifiedModelAdapter:
         return self._bounds
 
     def attach(self, env: Any) -> None:
-        pass
+        n_obs = int(env.observation_space.shape[0])
+        if max(self.measured_obs) >= n_obs:
+            raise ValueError(f"measured_obs {self.measured_obs}: the environment observes {n_obs} signals "
+                             f"({', '.join(getattr(env, 'observation_names', []))}); an NH3-sensor model needs "
+                             "UreaSCREnv(nh3_sensor=True)")
 
     def reset(self, observation: np.ndarray) -> None:
         x0 = None if self.initial_state is None else self.initial_state(np.asarray(observation, dtype=np.float64))
@@ -350,8 +364,11 @@ class IdentifiedModelAdapter:
         if self._u_last is not None:
             # obs[3] was measured after the last interval, whose input was the applied dose u_prev_g_s under the
             # disturbance now measured: correct x_{k-1} with (u_{k-1}, y_{k-1}), then propagate to x_k
-            k = self.measured_output
-            self.ekf_.step(u_now, np.array([(obs[3] - self._ym[k]) / self._ys[k]]))
+            if max(self.measured_obs) >= obs.size:
+                raise ValueError(f"observation has {obs.size} entries, the EKF reads entries {self.measured_obs} "
+                                 "(an NH3-sensor model needs UreaSCREnv(nh3_sensor=True))")
+            self.ekf_.step(u_now, np.array([(obs[j] - self._ym[k]) / self._ys[k]
+                                            for k, j in zip(self._measured, self.measured_obs)]))
         self._u_last = u_now
         return self.ekf_.x_.copy(), np.zeros((disturbances.shape[0], 0)), np.zeros(0)
 

@@ -170,7 +170,7 @@ class AdaptiveMPC:
 
         # explicit stages in both arms: the drift adapter re-parametrises the explicit stage model online, and the
         # comparison is fixed versus adapted model, not one NLP formulation against another
-        fixed = identified_mpc(ident, quick, storage_value_g_per_mol=storage_value, implicit=False,
+        fixed = identified_mpc(ident, quick, storage_value_g_per_mol=storage_value, implicit=False, nh3_sensor=False,
                           preview=False)
         base = fixed.model
         stage_dt = float(ident["dt"]) * fixed.stage_steps
@@ -290,7 +290,7 @@ def run_fixed(ident: dict[str, Any], items: list[dict[str, Any]], quick: bool, e
     from control.evaluation import run_episode
     from experiments.control_benchmark import identified_mpc
 
-    mpc = identified_mpc(ident, quick, storage_value_g_per_mol=storage_value, implicit=False,
+    mpc = identified_mpc(ident, quick, storage_value_g_per_mol=storage_value, implicit=False, nh3_sensor=False,
                          preview=False)  # as AdaptiveMPC's
     rows = []
     for it in items:

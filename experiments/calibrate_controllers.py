@@ -8,6 +8,7 @@ at load steps, a full store slips at the next heat-up. The knob per controller (
 
 * ``identified`` (grey-box NMPC, no preview): the terminal value of stored NH3 [g AdBlue equivalent per mol];
 * ``identified_preview`` (the same NMPC with the cycle preview of the engine-out disturbances): the same knob;
+* ``identified_nh3`` (``identified_preview`` whose EKF also reads a tailpipe NH3 sensor): the same knob;
 * ``oracle`` (first-principles NMPC with the cycle preview): the *safe slip* [ppm] that sets its safe coverage,
   the coverage whose desorption at the hottest temperature of the next 120 s gives that slip (terminal penalty
   above it; the storage value stays at its 200 g/mol).
@@ -34,6 +35,7 @@ from experiments.sweep import add_arguments, from_args, run_sweep
 #: the calibrated argument of each controller and the values tried by default
 KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "identified_preview": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
+         "identified_nh3": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "oracle": ("safe_slip_ppm", (20.0, 50.0, 100.0, 200.0))}
 DEFAULT_SEEDS = (5, 6)
 SLIP_TARGET_PPM = 8.0
@@ -43,9 +45,11 @@ def _controller(kind: str, value: float, ident: dict[str, Any] | None) -> Any:
     from experiments import control_benchmark as cb
 
     if kind == "identified":
-        return cb.identified_mpc(ident, storage_value_g_per_mol=value, preview=False)
+        return cb.identified_mpc(ident, storage_value_g_per_mol=value, preview=False, nh3_sensor=False)
     if kind == "identified_preview":
-        return cb.identified_mpc(ident, storage_value_g_per_mol=value, preview=True)
+        return cb.identified_mpc(ident, storage_value_g_per_mol=value, preview=True, nh3_sensor=False)
+    if kind == "identified_nh3":
+        return cb.identified_mpc(ident, storage_value_g_per_mol=value, preview=True, nh3_sensor=True)
     if kind == "oracle":
         return cb.oracle_mpc(safe_slip_ppm=value)
     raise ValueError(f"controller must be one of {sorted(KNOBS)}, got {kind!r}")
@@ -56,7 +60,9 @@ def episode(kind: str, value: float, seed: int, ident: dict[str, Any] | None) ->
     from control.evaluation import evaluate
 
     t0 = time.perf_counter()
-    res = evaluate(_controller(kind, value, ident), cycles=("random",), seeds=(seed,), name=kind)[0]
+    policy = _controller(kind, value, ident)
+    res = evaluate(policy, cycles=("random",), seeds=(seed,), env_kwargs=getattr(policy, "env_kwargs", None),
+                   name=kind)[0]
     k = res.kpis
     return {"controller": kind, "knob": KNOBS[kind][0], "value": value, "seed": seed,
             "tailpipe_nox_g_per_kwh": k["tailpipe_nox_g_per_kwh"], "mean_nh3_slip_ppm": k["mean_nh3_slip_ppm"],

@@ -10,7 +10,9 @@
    output; full run only: its fit takes minutes) and the grey-box NH3-storage model; validation FIT of each
    output on held-out excitation data (the WHTC, other seed).
 3. NMPC on each identified model (:class:`control.models.IdentifiedModelAdapter`, state by EKF from the measured
-   tailpipe NOx sensor only), the oracle NMPC on the first-principles model (privileged state, cycle preview).
+   signals: the black-box models from the tailpipe NOx sensor only, the grey-box model as
+   ``experiments.control_benchmark``'s ``mpc_identified``: NOx and NH3 sensors, cycle preview), the oracle NMPC on
+   the first-principles model (privileged state, cycle preview).
 4. Closed loop on held-out cycles (hot WHTC and WHSC; ``--quick``: the first 600 s of the WHTC) against the look-up table,
    the PI baseline, the oracle and the shipped RL policies. ``gap_closed[model][cycle]`` is the fraction of the
    look-up-table-to-oracle gap in tailpipe NOx [g/kWh] that the NMPC on that identified model closes.
@@ -156,7 +158,8 @@ def episode(name: str, trace_index: int, ident: dict[str, Any], quick: bool) -> 
     t0 = time.perf_counter()
     try:
         policy = make_controller(name, ident, quick)
-        res = evaluate(policy, cycles=(trace,), seeds=(0,), name=name, record_trajectory=True)[0]
+        res = evaluate(policy, cycles=(trace,), seeds=(0,), env_kwargs=getattr(policy, "env_kwargs", None), name=name,
+                       record_trajectory=True)[0]
     except Exception as exc:  # noqa: BLE001  (a controller that cannot run is reported, the study goes on)
         return {"name": name, "cycle": trace.name, "error": f"{type(exc).__name__}: {exc}"}
     row = {k: v for k, v in res.row().items() if isinstance(v, (int, float, str))}

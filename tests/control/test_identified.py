@@ -66,3 +66,33 @@ def test_nmpc_on_implicit_stage_solves_and_doses():
     res = evaluate(mpc, cycles=("whsc",), max_steps=20, record_trajectory=True)[0]
     assert res.stats["solves"] == 20 and res.stats["solver_failures"] == 0
     assert res.trajectory["adblue_g_s"].max() > 0.0
+
+
+def _nh3_sensor_mpc() -> NonlinearMPC:
+    m = StorageGreyBox.from_params(PARAMS, np.array([0.95, 1.0]), n_cells=2)
+    adapter = IdentifiedModelAdapter(m, np.zeros(4), np.ones(4), np.zeros(3), np.ones(3),
+                                     measured_output=(2, 1), measured_obs=(3, 5), measurement_noise=[100.0, 100.0],
+                                     process_noise=np.array([1e-6, 1e-6, 0.5]),
+                                     state_bounds=(np.array([0, 0, 250.0]), np.array([1, 1, 900.0])),
+                                     initial_state=lambda obs: np.array([0.0, 0.0, obs[1]]),
+                                     implicit_stage=m.implicit_stage)
+    return NonlinearMPC(adapter, horizon=4, stage_steps=2)
+
+
+def test_ekf_reads_the_nh3_sensor_when_told():
+    mpc = _nh3_sensor_mpc()
+    res = evaluate(mpc, cycles=("whsc",), max_steps=20, env_kwargs={"nh3_sensor": True})[0]
+    assert res.stats["solves"] == 20 and res.stats["solver_failures"] == 0
+    assert mpc.model.ekf_.R_.shape == (2, 2)
+
+
+def test_nh3_sensor_model_on_an_env_without_the_sensor_is_refused():
+    with pytest.raises(ValueError, match="nh3_sensor=True"):
+        evaluate(_nh3_sensor_mpc(), cycles=("whsc",), max_steps=5)
+
+
+def test_measured_obs_must_match_the_measured_outputs():
+    m = StorageGreyBox.from_params(PARAMS, np.array([0.95, 1.0]), n_cells=2)
+    with pytest.raises(ValueError, match="measured_obs"):
+        IdentifiedModelAdapter(m, np.zeros(4), np.ones(4), np.zeros(3), np.ones(3), measured_output=(2, 1),
+                               measured_obs=(3,))
