@@ -35,7 +35,7 @@ gain, the spread between segments dominates): monotone blocks on every input, un
 linear block (``unit_gain``), a steady-state initial condition (``initial="steady"``), blocked 4-fold
 cross-validation and the estimation cost as selection criteria, a smoothness grid reaching 1e-4 or 1000.
 
-Result (seed 0, about 35 s on one core): M-V 69.3 % FIT on the estimation data, 54.4 % on the validation data
+Result (seed 0, about 35 s on one core): M-V 69.2 % FIT on the estimation data, 54.2 % on the validation data
 (67.9 % with the validation x(0) of MATLAB ``compare``); M-IV 50.9 %, the linear models 48 %. The previous rule
 (nk = 1 only) gives 36.4 % carried on (64.7 % compare-style, the figure reported before). The thesis' 68.05 % is
 not reached. What limits it:
