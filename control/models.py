@@ -248,8 +248,8 @@ class IdentifiedModelAdapter:
         sequence of output indices read from the observation entries ``measured_obs``.
     measured_obs : observation index of each measured output (default ``(3,)``: the tailpipe NOx sensor; with
         ``UreaSCREnv(nh3_sensor=True)`` the NH3 sensor is obs[5]).
-    measurement_noise : scalar, or one variance per measured output (normalised units).
-    process_noise, measurement_noise : EKF covariances (normalised units).
+    process_noise, measurement_noise : EKF covariances (normalised units; measurement_noise a scalar or one
+        variance per measured output).
     state_bounds : (lower, upper) of the model state (NLP bounds and EKF clipping); default +/-50.
     initial_state : ``f(observation) -> x0`` at episode start (default zeros).
     model_dt : sample time of the model [s]; a stage of the MPC is round(h / model_dt) model steps.
@@ -324,17 +324,27 @@ class IdentifiedModelAdapter:
             x, y = self.step_(x, un)
         return x, y
 
+    def _stage(self, x_next: Any, x: Any, u: Any, d: Any, h: float) -> tuple[Any, Any]:
+        """(residual, y) of one stage. The NLP asks for the residual and then the outputs of the same stage: the
+        last stage is kept, so its expressions are built (and evaluated at every solve) once, not twice."""
+        key = (x_next, x, u, d, h)
+        last = getattr(self, "_last_stage", None)
+        if last is not None and all(a is b for a, b in zip(last[0], key)):
+            return last[1]
+        if self.implicit_stage is not None:
+            stage = self.implicit_stage(x_next, x, ca.vertcat(*self._u_norm(u, d)), h)
+        else:
+            xs, y = self._simulate(x, u, d, h)
+            stage = (x_next - xs, y)
+        self._last_stage = (key, stage)
+        return stage
+
     def residual(self, x_next: Any, x: Any, u: Any, d: Any, p: Any, h: float) -> Any:
         self._h = h
-        if self.implicit_stage is not None:
-            return self.implicit_stage(x_next, x, ca.vertcat(*self._u_norm(u, d)), h)[0]
-        return x_next - self._simulate(x, u, d, h)[0]
+        return self._stage(x_next, x, u, d, h)[0]
 
     def outputs(self, x_next: Any, x: Any, u: Any, d: Any, p: Any) -> Any:
-        if self.implicit_stage is not None:
-            y = self.implicit_stage(x_next, x, ca.vertcat(*self._u_norm(u, d)), self._h)[1]
-        else:
-            y = self._simulate(x, u, d, self._h)[1]
+        y = self._stage(x_next, x, u, d, self._h)[1]
         i, j = self.output_indices
         return ca.vertcat(y[i] * self._ys[i] + self._ym[i], y[j] * self._ys[j] + self._ym[j])
 
@@ -364,9 +374,6 @@ class IdentifiedModelAdapter:
         if self._u_last is not None:
             # obs[3] was measured after the last interval, whose input was the applied dose u_prev_g_s under the
             # disturbance now measured: correct x_{k-1} with (u_{k-1}, y_{k-1}), then propagate to x_k
-            if max(self.measured_obs) >= obs.size:
-                raise ValueError(f"observation has {obs.size} entries, the EKF reads entries {self.measured_obs} "
-                                 "(an NH3-sensor model needs UreaSCREnv(nh3_sensor=True))")
             self.ekf_.step(u_now, np.array([(obs[j] - self._ym[k]) / self._ys[k]
                                             for k, j in zip(self._measured, self.measured_obs)]))
         self._u_last = u_now

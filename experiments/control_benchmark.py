@@ -7,8 +7,8 @@ identified from open-loop excitation data on random cycles, state by EKF from th
 tailpipe NOx sensor and a tailpipe NH3 sensor -- with the cycle preview of the engine-out disturbances as the
 oracle has it), its variants ``mpc_identified_nox_sensor`` (EKF on the NOx sensor alone) and
 ``mpc_identified_no_preview`` (NOx sensor alone, the measured disturbances held over the horizon: what a truck
-without an NH3 sensor or route preview can do), ``mpc_oracle`` (NMPC on the first-principles catalyst with privileged state and the cycle preview), and the shipped
-RL policies ``ppo`` / ``sac`` when :mod:`control.rl` provides them (skipped otherwise, and said so). Writes the KPI
+without an NH3 sensor or route preview can do), ``mpc_oracle`` (NMPC on the first-principles catalyst with
+privileged state and the cycle preview), and the shipped RL policies ``ppo`` / ``sac`` when :mod:`control.rl` provides them (skipped otherwise, and said so). Writes the KPI
 table, a JSON {"cycles": {cycle: {"controllers": {name: KPIs and timings}}}} and plots of the closed-loop
 trajectories to ``runs/control_benchmark/<stamp>/``. ``--quick``: the WHTC only, shorter oracle horizon.
 """
@@ -101,15 +101,14 @@ def identified_mpc(ident: dict[str, Any], quick: bool = False,
                    safe_slip_ppm: float = 20.0, margin_k: float = 30.0, flow_ref_mol_s: float = 0.5,
                    cap_weight: float = 2.0e4, preview: bool | None = None, implicit: bool = True,
                    nh3_sensor: bool | None = None) -> Any:
-    """NMPC on the identified grey-box model, EKF on the tailpipe NOx sensor. ``storage_value_g_per_mol`` > 0 adds
+    """NMPC on the identified grey-box model, EKF on the tailpipe sensors. ``storage_value_g_per_mol`` > 0 adds
     the oracle's terminal value of stored NH3 on the identified storage state, with the oracle's safe-coverage
     penalty learned from the identified model: ``cap_weight`` per (excess)^2 of each cell's identified desorption
     slip above ``safe_slip_ppm`` at its terminal temperature plus ``margin_k`` (a heat-up margin) and the reference
     flow ``flow_ref_mol_s``. ``preview``: the cycle preview of the engine-out disturbances over the horizon, as the
     oracle has it (privileged information; default :data:`IDENTIFIED_PREVIEW`; False: the measured disturbances
-    held). ``implicit``: the NLP's
-    stages are the grey-box's smooth implicit-Euler equations (:meth:`StorageGreyBox.implicit_stage`) instead of its
-    clipped explicit step; on the random calibration cycles this turned most failed SQP solves into solved ones
+    held). ``implicit``: the NLP's stages are the grey-box's smooth implicit-Euler equations
+    (:meth:`StorageGreyBox.implicit_stage`) instead of its clipped explicit step; on the random calibration cycles this turned most failed SQP solves into solved ones
     (seed 8, storage value 0: 695 -> 487 failures, 1.63 -> 0.23 g/kWh; seed 5, value 100: 722 -> 626, 1.24 -> 0.30
     g/kWh; median solve 9 -> 2.6 ms). ``nh3_sensor``: the EKF also corrects with a tailpipe NH3 sensor (the
     environment's optional ``nh3_sensor=True`` observation, set in the returned policy's ``env_kwargs``), so a high
@@ -134,7 +133,8 @@ def identified_mpc(ident: dict[str, Any], quick: bool = False,
         output_indices=(0, 1), measured_output=(2, 1) if nh3_sensor else 2,
         measured_obs=(3, 5) if nh3_sensor else (3,), process_noise=np.r_[np.full(n, 1e-6), 0.5],
         # variances [ppm^2] of the sensor readings: NOx sensor SD 10 ppm; NH3 sensor the same [chosen]
-        measurement_noise=[100.0, 100.0] if nh3_sensor else 100.0, state_bounds=(np.r_[np.zeros(n), 250.0], np.r_[np.ones(n), 900.0]),
+        measurement_noise=[100.0, 100.0] if nh3_sensor else 100.0,
+        state_bounds=(np.r_[np.zeros(n), 250.0], np.r_[np.ones(n), 900.0]),
         initial_state=lambda obs: np.r_[np.zeros(n), obs[1]], model_dt=ident["dt"],
         # the grey-box parameters are continuous-time: the same model discretised at the 2 s stage length
         stage_model=StorageGreyBox.from_params(ident["params"], ident["sensor_gains"], n, ident["dt"] * 4),
