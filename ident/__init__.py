@@ -8,7 +8,6 @@ from ident.linear import ARX, N4SID, OutputError, StateSpaceModel, StateSpacePEM
 from ident.metrics import Comparison, compare, fit_percent, mse, nrmse, rms
 from ident.multiple_model import MultipleModel, quantile_edges
 from ident.preprocessing import Normalizer, arrhenius_transform, finite_difference, normalize_split
-
 from ident.rpem import RecursivePEM
 
 __all__ = [

@@ -6,7 +6,8 @@ use, for example, one Hammerstein-Wiener model of tailpipe NOx and another of NH
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -24,7 +25,7 @@ class OutputStack:
     def __init__(self, estimators: Sequence[Any]) -> None:
         self.estimators = estimators
 
-    def fit(self, u: np.ndarray, y: np.ndarray) -> "OutputStack":
+    def fit(self, u: np.ndarray, y: np.ndarray) -> OutputStack:
         """Fit estimator i on output column i; returns self."""
         y = as_2d("y", y)
         u = as_2d("u", u, min_rows=2)

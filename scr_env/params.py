@@ -105,7 +105,7 @@ class CatalystParams:
         return (self.volume_m3 * (1.0 - self.open_frontal_area) * self.solid_density_kg_m3
                 * self.solid_heat_capacity_j_kg_k)
 
-    def replace(self, **changes: float) -> "CatalystParams":
+    def replace(self, **changes: float) -> CatalystParams:
         """A copy with some fields changed (validated)."""
         return dataclasses.replace(self, **changes)
 
@@ -249,7 +249,7 @@ class SensorParams:
             if not math.isfinite(v) or v < 0:
                 raise ValueError(f"SensorParams.{f.name} must be a non-negative finite number, got {v!r}")
 
-    def noiseless(self) -> "SensorParams":
+    def noiseless(self) -> SensorParams:
         """The same sensors without noise (lags kept)."""
         return dataclasses.replace(self, nox_sensor_noise_ppm=0.0, upstream_nox_noise_ppm=0.0,
                                    temperature_noise_k=0.0, flow_noise_fraction=0.0, nh3_sensor_noise_ppm=0.0)

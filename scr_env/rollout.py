@@ -1,8 +1,9 @@
 """Run a dosing policy over a drive cycle and get the whole trajectory as arrays (for identification and plots)."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

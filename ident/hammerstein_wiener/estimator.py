@@ -24,9 +24,9 @@ Options against overfitting flexible input blocks (Paper IV's M-V):
 * ``smoothness``: a penalty ``smoothness * N * sum_blocks ||R p||^2`` on the blocks' ``roughness_matrix`` (for a
   piecewise-linear block the changes of slope at its inner knots), i.e. ``smoothness`` per unit of mean squared
   error; it pulls every block toward a straight line, which the linear block can absorb. A sequence of values is a
-  grid: each is fitted on the first ``1 - holdout`` of the estimation data and scored by the simulated FIT on the
-  rest (simulated through the whole record from an x(0) estimated on the fitted part, so the hold-out continues
-  the fitted record), the best is refitted on all of it
+  grid, chosen exactly as :func:`select_by_holdout` chooses: each value fitted with the last ``holdout`` of the
+  estimation data given zero weight and scored by the simulated FIT there (simulated through the whole record from
+  an x(0) estimated on the fitted part, so the hold-out continues the fitted record), the best refitted on all of it
   (``smoothness_``, ``holdout_scores_``). Nothing outside the data passed to ``fit`` is used.
 * ``init_model`` may be a fitted :class:`~ident.linear.OutputError` or :class:`HammersteinWiener` on the same inputs,
   or an *unfitted* :class:`HammersteinWiener` template, which is then fitted first on the data passed to ``fit``
@@ -269,27 +269,12 @@ class HammersteinWiener:
                              f"{self.smoothness!r}")
         scores: dict[float, float] = {}
         if np.ndim(self.smoothness) > 0 and grid.size > 1:
-            if not 0.0 < float(self.holdout) < 1.0:
-                raise ValueError(f"holdout must be in (0, 1), got {self.holdout!r}")
-            u_all, y_all = as_2d("u", u), as_2d("y", y)
-            n = check_same_length(u=u_all, y=y_all)
-            # the inner hold-out is the end of the weighted samples (with weights, zero-weight samples stay out)
-            use = self._sqrt_weights(sample_weight, n) > 0
-            n_end = int(np.flatnonzero(use)[-1]) + 1
-            n_in = round(n_end * (1.0 - float(self.holdout)))
-            for lam in grid:
-                inner = HammersteinWiener(**{**self.get_params(), "smoothness": float(lam)})
-                try:
-                    inner._fit_once(u_all[:n_in], y_all[:n_in], float(lam),
-                                    None if sample_weight is None else np.asarray(sample_weight)[:n_in])
-                    keep = use[n_in:n_end]
-                    y_hat = inner.predict(u_all[:n_end], y0=y_all[:n_in])[n_in:, 0][keep]
-                    y_ho = y_all[n_in:n_end, 0][keep]
-                    score = fit_percent(y_ho, y_hat)
-                except (ValueError, np.linalg.LinAlgError):
-                    score = -np.inf
-                scores[float(lam)] = float(score) if np.isfinite(score) else -np.inf
-            best = max(scores, key=lambda k: (scores[k], k))  # ties: the smoother
+            # smoother first, so a tie goes to the smoother value (the earlier candidate wins ties)
+            lams = sorted({float(lam) for lam in grid}, reverse=True)
+            templates = [HammersteinWiener(**{**self.get_params(), "smoothness": lam}) for lam in lams]
+            fits = _holdout_scores(templates, u, y, self.holdout, sample_weight)
+            scores = dict(zip(lams, fits))
+            best = lams[int(np.argmax(fits))]
         else:
             best = float(grid[0])
         self._fit_once(u, y, best, sample_weight)
@@ -682,22 +667,39 @@ def select_by_holdout(candidates: Sequence[HammersteinWiener], u: Any, y: Any, h
     """
     if not candidates:
         raise ValueError("no candidate models")
+    u_arr, y_arr = as_2d("u", u), as_2d("y", y)
+    scores = _holdout_scores(candidates, u_arr, y_arr, holdout)
+    best = int(np.argmax(scores))
+    return HammersteinWiener(**candidates[best].get_params()).fit(u_arr, y_arr), scores
+
+
+def _holdout_scores(candidates: Sequence[HammersteinWiener], u: Any, y: Any, holdout: float,
+                    sample_weight: Any = None) -> list[float]:
+    """Hold-out FIT (%) of each unfitted template: fitted with the weighted samples after the first
+    ``1 - holdout`` of them given zero weight (the record is still simulated through them), scored on those held-out
+    samples of its output simulated through the record from an x(0) estimated on the fitted part. A candidate whose
+    fit fails scores -inf. Shared by :func:`select_by_holdout` and the ``smoothness`` grid of
+    :meth:`HammersteinWiener.fit` (with ``sample_weight``, zero-weight samples stay out of fit and score alike)."""
     if not 0.0 < float(holdout) < 1.0:
         raise ValueError(f"holdout must be in (0, 1), got {holdout!r}")
     u_arr, y_arr = as_2d("u", u), as_2d("y", y)
     n = check_same_length(u=u_arr, y=y_arr)
-    n_in = round(n * (1.0 - float(holdout)))
-    w = np.zeros(n)
-    w[:n_in] = 1.0
-    y_ho = y_arr[n_in:, 0]
+    base = HammersteinWiener._sqrt_weights(sample_weight, n) ** 2
+    used = np.flatnonzero(base > 0)
+    n_end = int(used[-1]) + 1
+    n_in = round(n_end * (1.0 - float(holdout)))
+    w = np.where(np.arange(n) < n_in, base, 0.0)
+    keep = base[n_in:n_end] > 0
+    y_ho = y_arr[n_in:n_end, 0][keep]
     scores: list[float] = []
     for cand in candidates:
         try:
+            if not np.any(w > 0):
+                raise ValueError("no weighted sample before the hold-out")
             m = HammersteinWiener(**cand.get_params()).fit(u_arr, y_arr, sample_weight=w)
-            y_hat = m.predict(u_arr, y0=y_arr[:n_in])[n_in:, 0]
+            y_hat = m.predict(u_arr[:n_end], y0=y_arr[:n_in])[n_in:, 0][keep]
             score = fit_percent(y_ho, y_hat)
         except (ValueError, np.linalg.LinAlgError):
             score = -np.inf
         scores.append(float(score) if np.isfinite(score) else -np.inf)
-    best = int(np.argmax(scores))
-    return HammersteinWiener(**candidates[best].get_params()).fit(u_arr, y_arr), scores
+    return scores

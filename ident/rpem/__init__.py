@@ -1,5 +1,6 @@
 """Recursive prediction error method (RPEM) on restricted black-box nonlinear ODE models (thesis Papers I-III)."""
 from ident.rpem.estimator import RecursivePEM
+from ident.rpem.parametric import ParametricRPEM
 from ident.rpem.regressors import (
     PAPER2_TERMS,
     SCR_PAPER3_LINEAR_TERMS,
@@ -7,17 +8,16 @@ from ident.rpem.regressors import (
     parse_terms,
     polynomial_terms,
 )
-from ident.rpem.parametric import ParametricRPEM
 from ident.rpem.selection import backward_elimination, forward_selection
 
 __all__ = [
+    "PAPER2_TERMS",
+    "SCR_PAPER3_LINEAR_TERMS",
+    "SCR_PAPER3_TERMS",
     "ParametricRPEM",
     "RecursivePEM",
-    "PAPER2_TERMS",
-    "SCR_PAPER3_TERMS",
-    "SCR_PAPER3_LINEAR_TERMS",
-    "parse_terms",
-    "polynomial_terms",
     "backward_elimination",
     "forward_selection",
+    "parse_terms",
+    "polynomial_terms",
 ]

@@ -21,7 +21,8 @@ catalyst). Only the parameters listed in ``free`` are estimated; the others stay
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -108,7 +109,7 @@ class ParametricRPEM:
         self.n_updates_ = 0
         self.n_rejected_ = 0
 
-    def start(self, x0: Sequence[float]) -> "ParametricRPEM":
+    def start(self, x0: Sequence[float]) -> ParametricRPEM:
         """Initialise (or restart) the recursion at state ``x0`` with parameters ``p0``."""
         self._setup(np.asarray(x0, dtype=float))
         return self

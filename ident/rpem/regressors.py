@@ -26,11 +26,11 @@ import numpy as np
 
 __all__ = [
     "PAPER2_TERMS",
-    "SCR_PAPER3_TERMS",
     "SCR_PAPER3_LINEAR_TERMS",
+    "SCR_PAPER3_TERMS",
+    "format_term",
     "parse_term",
     "parse_terms",
-    "format_term",
     "polynomial_terms",
 ]
 

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from scr_env.cycles import ExhaustTrace, available_cycles, load_cycle
-from scr_env.envs.core import OBS_BASE, OBS_BASE_HIGH, OBS_BASE_LOW, NH3_SENSOR_HIGH, RewardWeights
+from scr_env.envs.core import NH3_SENSOR_HIGH, OBS_BASE, OBS_BASE_HIGH, OBS_BASE_LOW, RewardWeights
 from scr_env.params import CatalystParams, DosingParams, SensorParams, aged, catalyst_preset
 
 ACTION_MODES = ("normalized", "physical")

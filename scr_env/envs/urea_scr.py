@@ -196,9 +196,9 @@ class UreaSCREnv(gym.Env):
         if not math.isfinite(v):
             raise ValueError(f"action must be finite, got {v!r}")
         if self.config.action_mode == "normalized":
-            a = -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
+            a = min(max(v, -1.0), 1.0)
             return 0.5 * (a + 1.0) * self.max_rate_g_s, a
-        rate = 0.0 if v < 0.0 else (self.max_rate_g_s if v > self.max_rate_g_s else v)
+        rate = min(max(v, 0.0), self.max_rate_g_s)
         return rate, self._to_norm(rate)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
@@ -262,9 +262,9 @@ class UreaSCREnv(gym.Env):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
             return None
-        from scr_env.envs.rendering import episode_figure, figure_to_rgb
-
         import matplotlib.pyplot as plt
+
+        from scr_env.envs.rendering import episode_figure, figure_to_rgb
 
         if self.render_mode == "rgb_array":
             fig = episode_figure(np.asarray(self._history))

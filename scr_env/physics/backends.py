@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import math
 import types
-from functools import lru_cache
-from typing import Any, Callable
+from collections.abc import Callable
+from functools import cache
+from typing import Any
 
 import numba
 
@@ -55,7 +56,7 @@ o2_factors_nb = _NB["o2_factors"]
 decomposition_efficiency_nb = _NB["decomposition_efficiency"]
 
 
-@lru_cache(maxsize=None)
+@cache
 def casadi_functions() -> tuple[Callable, Callable, Callable]:
     """``(cell_balance, rate_constants, decomposition_efficiency)`` on CasADi SX/MX expressions (lazy import)."""
     import casadi as ca

@@ -28,15 +28,15 @@ Every rate also returns its derivative with respect to theta, for the implicit i
 """
 from __future__ import annotations
 
-from math import exp, log, sqrt  # noqa: F401  (rebound per backend, see module docstring)
+from math import exp, log, sqrt  # rebound per backend (see the module docstring)
 
 
-def select(condition, if_true, if_false):  # noqa: ANN001, ANN201  (rebound per backend)
+def select(condition, if_true, if_false):  # rebound per backend
     """``if_true`` where ``condition`` else ``if_false`` (scalar; CasADi uses ``if_else``)."""
     return if_true if condition else if_false
 
 
-def cell_balance(theta, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2, k_ox,  # noqa: ANN001, ANN201, PLR0913
+def cell_balance(theta, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2, k_ox,
                  k_ox_no, k_n2o):
     """Quasi-steady gas phase and coverage rate of one cell.
 
@@ -106,13 +106,13 @@ def cell_balance(theta, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamm
     return g, dg, y_nh3, y_no, y_no2, r_std, r_fast, r_no2, r_ox, r_ox_no, r_n2o
 
 
-def o2_factors(o2_fraction, o2_reference_fraction, o2_order_std, o2_order_ox):  # noqa: ANN001, ANN201
+def o2_factors(o2_fraction, o2_reference_fraction, o2_order_std, o2_order_ox):
     """Rate multipliers for the O2 mole fraction [-] relative to the lab's: (standard SCR, NH3 oxidations)."""
     log_rel = log(o2_fraction / o2_reference_fraction)
     return exp(o2_order_std * log_rel), exp(o2_order_ox * log_rel)
 
 
-def arrhenius_constants(temperature_k, f_o2_std, f_o2_ox, a_ads, a_des, e_des, temkin_gamma, a_std, e_std,  # noqa: ANN001, ANN201, PLR0913
+def arrhenius_constants(temperature_k, f_o2_std, f_o2_ox, a_ads, a_des, e_des, temkin_gamma, a_std, e_std,
                         a_fast, e_fast, a_no2, e_no2, a_ox, e_ox, a_ox_no, e_ox_no, a_n2o, e_n2o):
     """Per-site constants of :func:`cell_balance` at a temperature [K], with the O2 factors of :func:`o2_factors`.
 
@@ -133,7 +133,7 @@ def arrhenius_constants(temperature_k, f_o2_std, f_o2_ox, a_ads, a_des, e_des, t
     return k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2, k_ox, k_ox_no, k_n2o
 
 
-def rate_constants(temperature_k, o2_fraction, a_ads, a_des, e_des, temkin_gamma, a_std, e_std, a_fast, e_fast,  # noqa: ANN001, ANN201, PLR0913
+def rate_constants(temperature_k, o2_fraction, a_ads, a_des, e_des, temkin_gamma, a_std, e_std, a_fast, e_fast,
                    a_no2, e_no2, a_ox, e_ox, a_ox_no, e_ox_no, a_n2o, e_n2o, o2_reference_fraction, o2_order_std,
                    o2_order_ox):
     """:func:`arrhenius_constants` at an O2 mole fraction [-] (the argument order of the packed parameters)."""
@@ -142,7 +142,7 @@ def rate_constants(temperature_k, o2_fraction, a_ads, a_des, e_des, temkin_gamma
                                e_fast, a_no2, e_no2, a_ox, e_ox, a_ox_no, e_ox_no, a_n2o, e_n2o)
 
 
-def decomposition_efficiency(temperature_k, t50_k, width_k):  # noqa: ANN001, ANN201
+def decomposition_efficiency(temperature_k, t50_k, width_k):
     """Fraction [-] of the injected urea that has decomposed to NH3 (thermolysis + HNCO hydrolysis) at the SCR inlet
     temperature [K]: a logistic curve, 50 % at ``t50_k`` (PHYSICS.md section 3; the curve shape is [chosen])."""
     return 1.0 / (1.0 + exp(-(temperature_k - t50_k) / width_k))

@@ -278,6 +278,28 @@ def test_select_by_holdout_finds_the_delay_and_refits_on_all() -> None:
         select_by_holdout(cands, u, y, holdout=1.0)
 
 
+def test_smoothness_grid_chooses_as_select_by_holdout() -> None:
+    """The ``smoothness`` grid inside ``fit`` and ``select_by_holdout`` share one hold-out rule: same scores, same
+    choice, and with ``sample_weight`` the zero-weight samples stay out of the hold-out too."""
+    u = np.column_stack([_inputs(600, 47), _inputs(600, 48)])
+    y = lfilter([0, 0.5], [1, -0.7], np.tanh(2 * u[:, 0])) + lfilter([0, 0.3], [1, -0.5], u[:, 1])
+    y = y + 0.05 * np.random.default_rng(6).standard_normal(600)
+    kw = dict(input_blocks=[PiecewiseLinear(6), PiecewiseLinear(6)], nb=1, nf=1, max_nfev=30)
+    grid = HammersteinWiener(**kw, smoothness=(0.0, 10.0)).fit(u, y)
+    best, scores = select_by_holdout([HammersteinWiener(**kw, smoothness=lam) for lam in (10.0, 0.0)], u, y)
+    assert grid.holdout_scores_ == pytest.approx({10.0: scores[0], 0.0: scores[1]}, rel=1e-12)
+    assert grid.smoothness_ == best.smoothness
+    np.testing.assert_allclose(grid.b_, best.b_, rtol=1e-9, atol=1e-12)
+    # trailing zero weights: the hold-out is the end of the weighted samples, so the outputs after them do not
+    # change the choice or the fit
+    w = np.r_[np.ones(500), np.zeros(100)]
+    m = HammersteinWiener(**kw, smoothness=(0.0, 10.0)).fit(u, y, sample_weight=w)
+    y_junk = np.r_[y[:500], 100.0 + y[500:]]
+    m2 = HammersteinWiener(**kw, smoothness=(0.0, 10.0)).fit(u, y_junk, sample_weight=w)
+    assert m2.holdout_scores_ == pytest.approx(m.holdout_scores_, rel=1e-9)
+    np.testing.assert_allclose(m2.b_, m.b_, rtol=1e-9, atol=1e-12)
+
+
 def test_unit_gain_moves_the_gain_into_the_block() -> None:
     u = np.column_stack([_inputs(800, 45), _inputs(800, 46)])
     g1 = np.tanh(u[:, 0])

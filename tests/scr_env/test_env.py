@@ -296,7 +296,7 @@ def test_ppo_smoke_run() -> None:
 
 def test_readme_usage_example_runs() -> None:
     readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", readme, re.S)
+    blocks = re.findall(r"```python\n(.*?)```", readme, re.DOTALL)
     assert blocks, "README has no python example"
     example = blocks[0]
     assert len(example.strip().splitlines()) <= 12
