@@ -70,3 +70,16 @@ def test_main_writes_the_table(tmp_path, monkeypatch) -> None:
     for r in res["rows"]:
         assert {"fit_estimation", "fit_validation", "fit_validation_x0_from_validation", "mse_validation"} <= set(r)
     assert res["protocol"]["n_estimation"] == 900 and "carried" in res["protocol"]["fit"]
+
+
+def test_diagnose_mv_scores_each_candidate_and_its_ceiling(data, fitted) -> None:
+    rows, _ = fitted
+    diag = rp4.diagnose_mv(data, mv=MV_SMALL)
+    assert [(d["nk"], d["smoothness"]) for d in diag] == [(1, 10.0), (0, 10.0)]
+    mv = next(r for r in rows if r["model"] == "M-V")
+    chosen = next(d for d in diag if mv["chosen"] == f"nk={d['nk']} smoothness={d['smoothness']:g}")
+    assert chosen["fit_validation"] == pytest.approx(mv["fit_validation"], abs=1e-9)  # the table's M-V, refitted
+    for d in diag:
+        # fitted with the validation window in its data, a candidate does better there than carried on from the
+        # estimation data alone
+        assert d["fit_validation_ceiling"] > d["fit_validation"]
