@@ -675,27 +675,29 @@ def select_by_holdout(candidates: Sequence[HammersteinWiener], u: Any, y: Any, h
 
 def _holdout_scores(candidates: Sequence[HammersteinWiener], u: Any, y: Any, holdout: float,
                     sample_weight: Any = None) -> list[float]:
-    """Hold-out FIT (%) of each unfitted template: fitted with the weighted samples after the first
-    ``1 - holdout`` of them given zero weight (the record is still simulated through them), scored on those held-out
-    samples of its output simulated through the record from an x(0) estimated on the fitted part. A candidate whose
-    fit fails scores -inf. Shared by :func:`select_by_holdout` and the ``smoothness`` grid of
-    :meth:`HammersteinWiener.fit` (with ``sample_weight``, zero-weight samples stay out of fit and score alike)."""
+    """Hold-out FIT (%) of each unfitted template. With ``n_end`` one past the last sample of positive weight, the
+    samples from ``round(n_end * (1 - holdout))`` to ``n_end`` get zero weight (the record is still simulated through
+    them); each candidate is fitted so and scored on those held-out samples (the ones of positive weight) of its
+    output simulated through the record from an x(0) estimated on the fitted part. A candidate whose fit fails scores
+    -inf. Shared by :func:`select_by_holdout` and the ``smoothness`` grid of :meth:`HammersteinWiener.fit`. Zero-weight
+    outputs enter neither fit nor score; the inputs of the whole record may still place the blocks' starting knots
+    or scales (as in any fit with ``sample_weight``)."""
     if not 0.0 < float(holdout) < 1.0:
         raise ValueError(f"holdout must be in (0, 1), got {holdout!r}")
     u_arr, y_arr = as_2d("u", u), as_2d("y", y)
     n = check_same_length(u=u_arr, y=y_arr)
-    base = HammersteinWiener._sqrt_weights(sample_weight, n) ** 2
-    used = np.flatnonzero(base > 0)
-    n_end = int(used[-1]) + 1
+    HammersteinWiener._sqrt_weights(sample_weight, n)   # validates the weights
+    base = np.ones(n) if sample_weight is None else np.asarray(sample_weight, dtype=float).reshape(-1)
+    n_end = int(np.flatnonzero(base > 0)[-1]) + 1
     n_in = round(n_end * (1.0 - float(holdout)))
     w = np.where(np.arange(n) < n_in, base, 0.0)
     keep = base[n_in:n_end] > 0
+    if not np.any(w > 0) or not np.any(keep):
+        raise ValueError(f"holdout {holdout!r} leaves no weighted sample to fit on or none to score on")
     y_ho = y_arr[n_in:n_end, 0][keep]
     scores: list[float] = []
     for cand in candidates:
         try:
-            if not np.any(w > 0):
-                raise ValueError("no weighted sample before the hold-out")
             m = HammersteinWiener(**cand.get_params()).fit(u_arr, y_arr, sample_weight=w)
             y_hat = m.predict(u_arr[:n_end], y0=y_arr[:n_in])[n_in:, 0][keep]
             score = fit_percent(y_ho, y_hat)

@@ -161,7 +161,9 @@ def _env_step_parallel(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
         _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
-@numba.njit(nogil=True, cache=True)
+# fastmath=False stated: numba would otherwise compile it with its caller's fast-math flags, and contracted
+# floating point in the ziggurat's accept tests could part from numpy's draws
+@numba.njit(nogil=True, fastmath=False, cache=True)
 def standard_normal_fill(rng, out):
     """``rng.standard_normal(out=out)`` for a C-contiguous ``out``, in compiled code: numba implements numpy's
     ziggurat on the same bit generator, so the values and the generator state afterwards are numpy's (checked by a

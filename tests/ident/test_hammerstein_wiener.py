@@ -284,7 +284,7 @@ def test_smoothness_grid_chooses_as_select_by_holdout() -> None:
     u = np.column_stack([_inputs(600, 47), _inputs(600, 48)])
     y = lfilter([0, 0.5], [1, -0.7], np.tanh(2 * u[:, 0])) + lfilter([0, 0.3], [1, -0.5], u[:, 1])
     y = y + 0.05 * np.random.default_rng(6).standard_normal(600)
-    kw = dict(input_blocks=[PiecewiseLinear(6), PiecewiseLinear(6)], nb=1, nf=1, max_nfev=30)
+    kw = {"input_blocks": [PiecewiseLinear(6), PiecewiseLinear(6)], "nb": 1, "nf": 1, "max_nfev": 30}
     grid = HammersteinWiener(**kw, smoothness=(0.0, 10.0)).fit(u, y)
     best, scores = select_by_holdout([HammersteinWiener(**kw, smoothness=lam) for lam in (10.0, 0.0)], u, y)
     assert grid.holdout_scores_ == pytest.approx({10.0: scores[0], 0.0: scores[1]}, rel=1e-12)
@@ -298,6 +298,8 @@ def test_smoothness_grid_chooses_as_select_by_holdout() -> None:
     m2 = HammersteinWiener(**kw, smoothness=(0.0, 10.0)).fit(u, y_junk, sample_weight=w)
     assert m2.holdout_scores_ == pytest.approx(m.holdout_scores_, rel=1e-9)
     np.testing.assert_allclose(m2.b_, m.b_, rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValueError, match="holdout"):   # nothing weighted before the hold-out
+        HammersteinWiener(**kw, smoothness=(0.0, 10.0)).fit(u, y, sample_weight=np.r_[np.zeros(590), np.ones(10)])
 
 
 def test_unit_gain_moves_the_gain_into_the_block() -> None:
