@@ -325,7 +325,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.diagnose:
         diag = diagnose_mv(ds)
         result["mv_diagnostics"] = diag
-        print("M-V candidates (diagnostic, uses the validation output): FIT est / val / val when fitted on samples 0-1197")
+        print("M-V candidates (diagnostic, uses the validation output): FIT est / val / val when fitted on "
+              "samples 0-1197")
         for d in diag:
             print(f"  nk={d['nk']} smoothness={d['smoothness']:<6g} {d['fit_estimation']:6.1f} % "
                   f"{d['fit_validation']:7.1f} % {d['fit_validation_ceiling']:6.1f} %")
