@@ -99,6 +99,10 @@ class NonlinearMPC:
     max_rate_change_g_s2 : dosing rate limit [g/s per s].
     preview : use the cycle preview (privileged) instead of holding the measured disturbance.
     fallback : policy applied when a solve fails (default: the look-up table).
+    slip_guard : ``(observation index, ppm)`` of a tailpipe NH3 sensor, or None. On a failed solve, while that
+        reading is above the threshold, nothing is dosed (neither the last plan nor the fallback): a failed solve
+        typically comes when the catalyst already slips (heating desorbs its store and the slip bound cannot be
+        met), and the open-loop fallback would dose into the slip. Solved plans are never overridden.
     solver, solver_options : CasADi ``nlpsol`` plugin and options (IPOPT quiet, 50 iterations by default).
     warm_start_duals : pass the previous solution's constraint multipliers (``lam_g0``) to the next solve; default
         True for IPOPT (interior point: only used with its warm-start option) and False otherwise. An SQP method
@@ -112,7 +116,7 @@ class NonlinearMPC:
                  weights: MPCWeights | None = None, slip_limit_ppm: float = 10.0,
                  max_rate_change_g_s2: float = 1.0, preview: bool = False, fallback: Any = None,
                  solver: str = "ipopt", solver_options: dict | None = None,
-                 warm_start_duals: bool | None = None) -> None:
+                 warm_start_duals: bool | None = None, slip_guard: tuple[int, float] | None = None) -> None:
         self.model = model
         self.horizon = horizon
         self.stage_steps = stage_steps
@@ -121,6 +125,13 @@ class NonlinearMPC:
         self.max_rate_change_g_s2 = max_rate_change_g_s2
         self.preview = preview
         self.fallback = fallback
+        if slip_guard is not None:
+            idx, ppm = slip_guard
+            if int(idx) != idx or idx < 0 or not np.isfinite(ppm) or ppm < 0:
+                raise ValueError("slip_guard must be (observation index >= 0, threshold ppm >= 0), "
+                                 f"got {slip_guard!r}")
+            slip_guard = (int(idx), float(ppm))
+        self.slip_guard = slip_guard
         self.solver = solver
         self.solver_options = solver_options
         self.warm_start_duals = (solver == "ipopt") if warm_start_duals is None else bool(warm_start_duals)
@@ -138,10 +149,15 @@ class NonlinearMPC:
         self.dt = float(env.dt)
         self.max_rate_g_s = float(env.max_rate_g_s)
         self._env = env if self.preview else None
+        if self.slip_guard is not None and self.slip_guard[0] >= int(np.prod(env.observation_space.shape)):
+            raise ValueError(f"slip_guard reads observation index {self.slip_guard[0]}, but the environment's "
+                             f"observation has {int(np.prod(env.observation_space.shape))} entries (an NH3 sensor "
+                             "needs nh3_sensor=True)")
         self.model.attach(env)
 
     def stats(self) -> dict[str, float]:
-        """Solver statistics of the episode: failures, solves, solve time median / p95 / max [ms], iterations.
+        """Solver statistics of the episode: failures, solves, solve time median / p95 / max [ms], iterations, and
+        the failed-solve steps the ``slip_guard`` set to zero dosing.
 
         ``solve_time_ms_*`` is the CPU time of the solving thread (what the solve costs, independent of other
         processes sharing the cores); ``solve_wall_ms_*`` the wall-clock time (includes waiting for a core)."""
@@ -149,7 +165,7 @@ class NonlinearMPC:
         tw = np.asarray(self._solve_wall_ms) if self._solve_wall_ms else np.array([math.nan])
         it = np.asarray(self._iters) if self._iters else np.array([math.nan])
         return {"solver_failures": float(self._failures), "solves": float(len(self._solve_ms)),
-                "solver_suboptimal": float(self._suboptimal),
+                "solver_suboptimal": float(self._suboptimal), "slip_guarded_steps": float(self._guarded),
                 "solve_time_ms_median": float(np.median(t)), "solve_time_ms_p95": float(np.percentile(t, 95)),
                 "solve_time_ms_max": float(np.max(t)), "solve_wall_ms_median": float(np.median(tw)),
                 "solve_wall_ms_p95": float(np.percentile(tw, 95)), "solver_iterations_mean": float(np.mean(it))}
@@ -157,6 +173,7 @@ class NonlinearMPC:
     def _reset_episode(self) -> None:
         self._failures = 0
         self._suboptimal = 0
+        self._guarded = 0
         self._plan_age = 0
         self._solve_ms: list[float] = []
         self._solve_wall_ms: list[float] = []
@@ -257,6 +274,9 @@ class NonlinearMPC:
             i = self._plan_age // self.stage_steps
             # the last good plan while it lasts, then the fallback policy (the look-up table by default)
             rate = float(plan["u"][i]) if plan is not None and i < len(plan["u"]) else self._fallback_rate(obs)
+            if self.slip_guard is not None and float(obs[self.slip_guard[0]]) > self.slip_guard[1]:
+                rate = 0.0   # the catalyst slips: a failed solve doses nothing (see slip_guard)
+                self._guarded += 1
             self._w0 = None
             self._lam_g0 = None
             lim = self.max_rate_change_g_s2 * self.dt

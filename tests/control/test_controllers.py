@@ -61,6 +61,31 @@ def test_model_error_falls_back_not_raises():
     assert res.stats["solver_failures"] == 5
 
 
+def test_slip_guard_doses_nothing_on_failed_solves_while_the_nh3_sensor_reads_slip():
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    lut = LookupTableDosing()
+    mpc = _identified_mpc(fallback=lut, max_rate_change_g_s2=100.0, slip_guard=(5, 10.0))
+    env = UreaSCREnv(cycle="whsc", nh3_sensor=True)
+    obs, _ = env.reset(seed=0)
+    mpc.attach(env)
+    mpc.model.prepare = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken model"))  # every solve fails
+    slipping = np.array([500.0, 550.0, 6.0, 30.0, 0.0, 25.0])
+    clean = slipping.copy()
+    clean[5] = 2.0
+    a, _ = mpc.predict(slipping, episode_start=True)
+    assert action_to_rate(a[0]) == 0.0                      # the fallback would dose; the guard stops it
+    a, _ = mpc.predict(clean)
+    assert action_to_rate(a[0]) == pytest.approx(lut.dose_g_s(clean), rel=1e-6) and lut.dose_g_s(clean) > 0
+    assert mpc.stats()["slip_guarded_steps"] == 1 and mpc.stats()["solver_failures"] == 2
+    # an environment without the NH3 sensor is refused, and so are malformed guards
+    with pytest.raises(ValueError, match="slip_guard"):
+        mpc.attach(UreaSCREnv(cycle="whsc"))
+    for bad in ((-1, 10.0), (5, float("nan")), (5, -1.0), (2.5, 10.0)):
+        with pytest.raises(ValueError, match="slip_guard"):
+            _identified_mpc(slip_guard=bad)
+
+
 def test_oracle_collocation_equals_plant_step():
     """At the plant's next state (casadi_model.catalyst_step, implicit Euler) the oracle's residual vanishes."""
     import casadi as ca
