@@ -71,7 +71,7 @@ def drive_table(trace: ExhaustTrace, o2_fraction: float) -> np.ndarray:
 
 # Per plant, everything is indexed [b, j] on the (B, ...) blocks, never through row views, and compiled without
 # reference counting (see the note at kernel._NO_REFCOUNT).
-@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True, inline="always")
 def _post_one(b, inputs, power_kw, dt, out, action_norm, weights, terms, reward, acc, obs, nh3_sensor, privileged,
               theta):
     flow = inputs[b, K.I_FLOW]
@@ -119,7 +119,7 @@ def _post_one(b, inputs, power_kw, dt, out, action_norm, weights, terms, reward,
             obs[b, i + j] = min(max(theta[b, j], 0.0), 1.0)
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True, inline="always")
 def _blocks(buf, lay):
     """The column blocks of the buffer, as (B, width) views (free without reference counting)."""
     n = lay[0]
@@ -149,19 +149,21 @@ def _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
               theta)
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True)
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True)
 def _env_step_serial(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
     for b in range(buf.shape[0]):
         _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True, parallel=True)
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True, parallel=True)
 def _env_step_parallel(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
     for b in numba.prange(buf.shape[0]):
         _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
-@numba.njit(nogil=True, cache=True)
+# fastmath=False stated: numba would otherwise compile it with its caller's fast-math flags, and contracted
+# floating point in the ziggurat's accept tests could part from numpy's draws
+@numba.njit(nogil=True, fastmath=False, cache=True)
 def standard_normal_fill(rng, out):
     """``rng.standard_normal(out=out)`` for a C-contiguous ``out``, in compiled code: numba implements numpy's
     ziggurat on the same bit generator, so the values and the generator state afterwards are numpy's (checked by a
@@ -172,7 +174,7 @@ def standard_normal_fill(rng, out):
 
 
 # The vector environment's per-step bookkeeping, compiled: numpy would make a dozen temporaries of B elements.
-@numba.njit(nogil=True, error_model="numpy", cache=True)
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True)
 def apply_actions(actions, normalized, max_rate_g_s, buf, col_adblue, col_action, rate_out):
     """Clip a batch of actions (shape (B,)) and write the AdBlue rate [g/s] (to the buffer column ``col_adblue`` and
     ``rate_out``) and the normalised action (to ``col_action``). Returns the number of non-finite actions; if there
@@ -198,7 +200,7 @@ def apply_actions(actions, normalized, max_rate_g_s, buf, col_adblue, col_action
     return 0
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True)
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True)
 def vector_outputs(buf, lay, k, length, info, step_index, truncated):
     """After a step: advance the step counters ``k``, set ``truncated`` (k >= length) and ``step_index`` (= k), and
     fill ``info`` rows 0-5 with nox, nh3 and adblue cost, tailpipe NOx and NH3 [ppm] and the reward. Returns whether
@@ -223,7 +225,7 @@ def vector_outputs(buf, lay, k, length, info, step_index, truncated):
     return ended
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True)
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True)
 def _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, rate_out):
     """Actions into the buffer, drive rows ``base + k``, sensor noise drawn; returns the number of non-finite
     actions (then nothing is written and no noise is drawn)."""
@@ -239,7 +241,7 @@ def _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, 
 # One compiled call per vector-env step (each numba call costs a few microseconds of argument checks, and the
 # Python glue between calls as much again): actions, noise, the plants, the bookkeeping. Returns -(number of
 # non-finite actions) if there are any (nothing done), else 1 if a plant's cycle ended, else 0.
-@numba.njit(nogil=True, error_model="numpy", cache=True)
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True)
 def vector_step_serial(actions, normalized, max_rate_g_s, buf, lay, obs, drive, base, k, length, row, rng, noise,
                        noise_idx, dt, info, step_index, truncated):
     bad = _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, info[6])
@@ -250,7 +252,7 @@ def vector_step_serial(actions, normalized, max_rate_g_s, buf, lay, obs, drive, 
     return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated) else 0
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True, parallel=True)
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True, parallel=True)
 def vector_step_parallel(actions, normalized, max_rate_g_s, buf, lay, obs, drive, base, k, length, row, rng, noise,
                          noise_idx, dt, info, step_index, truncated):
     bad = _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, info[6])

@@ -41,6 +41,7 @@ from scr_env.constants import (
 )
 from scr_env.params import DosingParams, SensorParams
 from scr_env.physics.backends import (
+    FASTMATH,
     arrhenius_constants_nb,
     cell_balance_nb,
     decomposition_efficiency_nb,
@@ -114,7 +115,7 @@ def pack_aux(dosing: DosingParams, sensors: SensorParams) -> np.ndarray:
     return np.array([values[k] for k in AUX_FIELDS], dtype=np.float64)
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True, inline="always")
 def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast,
                    k_no2, k_ox, k_ox_no, k_n2o):
     """Root in [0, 1] of R(theta) = (theta - theta_old) inv_dt - g(theta), and :func:`cell_balance` there.
@@ -173,10 +174,10 @@ def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_d
 # argument otherwise costs two atomic updates of the reference count of the one buffer shared by all plants, which
 # made the threads of the parallel loop fight over one cache line (measured: a fifth of the serial step time went
 # to NRT_incref/NRT_decref, and the parallel step scaled far below 2x on 2 cores).
-_NO_REFCOUNT = {"nogil": True, "error_model": "numpy", "cache": True, "_nrt": False}
+_NO_REFCOUNT = {"nogil": True, "error_model": "numpy", "fastmath": set(FASTMATH), "cache": True, "_nrt": False}
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True, inline="always")
 def _chemistry_row(theta, temperature_k, b, q, y_nh3_in, y_no_in, y_no2_in, o2_fraction, inv_dt, p):
     """:func:`catalyst_chemistry` of row ``b`` of (B, N) states and (B, len(PACKED_FIELDS)) parameters."""
     n = theta.shape[1]
@@ -207,7 +208,7 @@ def _chemistry_row(theta, temperature_k, b, q, y_nh3_in, y_no_in, y_no2_in, o2_f
     return y_no, y_no2, y_nh3, y_n2o, n2_per_site
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True)
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True)
 def catalyst_chemistry(theta, temperature_k, q, y_nh3_in, y_no_in, y_no2_in, o2_fraction, inv_dt, p):
     """Advance the coverage of every cell (in place) at given cell temperatures.
 
@@ -218,7 +219,7 @@ def catalyst_chemistry(theta, temperature_k, q, y_nh3_in, y_no_in, y_no2_in, o2_
                           o2_fraction, inv_dt, p[np.newaxis, :])
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True, inline="always")
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True, inline="always")
 def _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     n = theta.shape[1]
     sites = cat_params[b, 1]
@@ -299,13 +300,13 @@ def _plant_step_b(b, theta, temperature_k, sensor_state, inputs, dt, cat_params,
     _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True)
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True)
 def _plant_step_serial(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     for b in range(theta.shape[0]):
         _plant_step_b(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
 
 
-@numba.njit(nogil=True, error_model="numpy", parallel=True, cache=True)
+@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), parallel=True, cache=True)
 def _plant_step_parallel(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     for b in numba.prange(theta.shape[0]):
         _plant_step_b(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
