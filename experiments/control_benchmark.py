@@ -22,9 +22,10 @@ met, nearly every solve fails, and the look-up-table fallback dosed into the sli
 AdBlue there). With the slip guard (a failed solve doses nothing while the NH3 sensor reads above 10 ppm, the
 limit, not tuned; :data:`SLIP_GUARD_PPM`): WHTC 0.207-0.214 g/kWh at 3.2-4.8 ppm over seeds 0-5 (230-382 failed
 solves), WHSC 0.176-0.184 g/kWh at 0.8-1.1 ppm; after the plant's fast-math compilation (scr_env/physics/backends.py)
-WHTC 0.207-0.215 g/kWh at 3.2-4.6 ppm (220-440 failed solves), WHSC 0.177-0.186 g/kWh at 0.8-1.2 ppm. The guard was added after that WHTC diagnosis; on the calibration
-cycles it leaves the chosen design unchanged (storage value 50: 0.286 g/kWh at 1.42 ppm, the guard never acting;
-it acts at value 100: 0.546 -> 0.681 g/kWh, 16.6 -> 14.6 ppm).
+WHTC 0.207-0.215 g/kWh at 3.2-4.6 ppm (220-440 failed solves), WHSC 0.177-0.186 g/kWh at 0.8-1.2 ppm. The guard
+was added after that WHTC diagnosis; on the calibration cycles it leaves the chosen design unchanged (storage
+value 50: 0.286 g/kWh at 1.42 ppm, the guard never acting; it acts at value 100: 0.546 -> 0.681 g/kWh, 16.6 ->
+14.6 ppm).
 """
 from __future__ import annotations
 
