@@ -272,11 +272,11 @@ class NonlinearMPC:
             self._plan_age += 1
             plan = self.last_plan_
             i = self._plan_age // self.stage_steps
-            # the last good plan while it lasts, then the fallback policy (the look-up table by default)
-            rate = float(plan["u"][i]) if plan is not None and i < len(plan["u"]) else self._fallback_rate(obs)
             if self.slip_guard is not None and float(obs[self.slip_guard[0]]) > self.slip_guard[1]:
                 rate = 0.0   # the catalyst slips: a failed solve doses nothing (see slip_guard)
                 self._guarded += 1
+            else:  # the last good plan while it lasts, then the fallback policy (the look-up table by default)
+                rate = float(plan["u"][i]) if plan is not None and i < len(plan["u"]) else self._fallback_rate(obs)
             self._w0 = None
             self._lam_g0 = None
             lim = self.max_rate_change_g_s2 * self.dt

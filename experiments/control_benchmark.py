@@ -146,13 +146,16 @@ def identified_mpc(ident: dict[str, Any], quick: bool = False,
         preview = IDENTIFIED_PREVIEW
     if nh3_sensor is None:
         nh3_sensor = IDENTIFIED_NH3_SENSOR
+    from scr_env.envs.core import OBS_BASE
+
+    nh3_obs = len(OBS_BASE)   # the optional NH3 sensor follows the base observation
     m = StorageGreyBox.from_params(ident["params"], ident["sensor_gains"], ident["n_cells"], ident["dt"])
     n = m.n_cells
     sites_per_cell = m.storage_capacity_mol / n
     adapter = IdentifiedModelAdapter(
         m, input_mean=np.zeros(4), input_scale=np.ones(4), output_mean=np.zeros(3), output_scale=np.ones(3),
         output_indices=(0, 1), measured_output=(2, 1) if nh3_sensor else 2,
-        measured_obs=(3, 5) if nh3_sensor else (3,), process_noise=np.r_[np.full(n, 1e-6), 0.5],
+        measured_obs=(3, nh3_obs) if nh3_sensor else (3,), process_noise=np.r_[np.full(n, 1e-6), 0.5],
         # variances [ppm^2] of the sensor readings: NOx sensor SD 10 ppm; NH3 sensor the same [chosen]
         measurement_noise=[100.0, 100.0] if nh3_sensor else 100.0,
         state_bounds=(np.r_[np.zeros(n), 250.0], np.r_[np.ones(n), 900.0]),
@@ -164,7 +167,7 @@ def identified_mpc(ident: dict[str, Any], quick: bool = False,
             m.desorption_ppm(x[j], x[n] + margin_k, flow_ref_mol_s) / safe_slip_ppm - 1.0, 0.0) ** 2
             if storage_value_g_per_mol > 0 else 0.0) for j in range(n)))
     mpc = NonlinearMPC(adapter, horizon=10 if quick else 20, stage_steps=4, preview=preview,
-                       slip_guard=(5, SLIP_GUARD_PPM) if nh3_sensor and slip_guard else None, **IDENT_SOLVER)
+                       slip_guard=(nh3_obs, SLIP_GUARD_PPM) if nh3_sensor and slip_guard else None, **IDENT_SOLVER)
     mpc.env_kwargs = {"nh3_sensor": True} if nh3_sensor else {}  # what the policy needs of the environment
     return mpc
 

@@ -290,8 +290,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--diagnose", action="store_true",
-                    help="also score every M-V candidate on the validation data and fit each on the whole record "
-                         "(the structure's ceiling on the validation window); about 20 s more")
+                    help="also score every M-V candidate on the validation data and fit each on samples 0-1197, the "
+                         "validation window included (about the structure's ceiling there); about 20 s more")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     ds = whtc_dataset(seed=args.seed)[:PAPER4_N_SAMPLES]
