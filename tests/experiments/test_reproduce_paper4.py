@@ -83,3 +83,17 @@ def test_diagnose_mv_scores_each_candidate_and_its_ceiling(data, fitted) -> None
         # fitted with the validation window in its data, a candidate does better there than carried on from the
         # estimation data alone
         assert d["fit_validation_ceiling"] > d["fit_validation"]
+
+
+def test_seed_spread_collects_each_seeds_table(fitted) -> None:
+    rows, _ = fitted
+    spread = rp4.seed_spread([0, 1], models=("M-II",))
+    m2 = spread["models"]["M-II"]
+    assert spread["seeds"] == [0, 1] and len(m2["fit_validation"]) == 2
+    seed0 = next(r for r in rows if r["model"] == "M-II")
+    assert m2["fit_validation"][0] == pytest.approx(seed0["fit_validation"], abs=1e-9)
+    assert m2["min"] <= m2["median"] <= m2["max"]
+    other = rp4.fit_models(whtc_dataset(seed=1)[:PAPER4_N_SAMPLES], models=("M-II",))[0][0]
+    assert m2["fit_validation"][1] == pytest.approx(other["fit_validation"], abs=1e-9)
+    with pytest.raises(ValueError, match="seeds"):
+        rp4.seed_spread([])
