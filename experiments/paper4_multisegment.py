@@ -24,9 +24,11 @@ Thesis conclusions, as paired differences of validation FIT over segments:
 * the exp(-a/T) temperature input helps: M-IV against M-III,
 * the piecewise-linear inputs help: M-V against M-IV.
 
-Verdict by the one-sided Wilcoxon signed-rank test of the paired differences (robust to those outlying segments):
-"holds" when p < 0.05, "not significant" when the median difference is positive but p >= 0.05, "does not hold"
-when the median difference is zero or negative. The mean difference and its t statistic are reported beside it.
+Verdict by the one-sided Wilcoxon signed-rank test of the paired differences (robust to those outlying segments;
+:func:`experiments._stats.paired_verdict`): "holds" when p < 0.05, "not significant" when the median difference is
+positive but p >= 0.05, "does not hold" when it is zero or negative. The mean difference and its t statistic are
+reported beside it. (Until 2026-11-23 the verdict was the t statistic of the mean difference, > 2 to hold; with
+FIT's unbounded negative side one segment decided it.)
 (Midpoint against Euler, Paper III's conclusion, is repeated over segments by :mod:`experiments.reproduce_paper3`.)
 
 NH3 slip as a second output, on the segments where it varies (SD above :data:`SLIP_MIN_SD_PPM` in both the
@@ -51,9 +53,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from experiments._runs import run_folder, write_json
+from experiments._stats import paired_verdict as verdict
+from experiments._stats import summarise
 from experiments.reproduce_paper4 import MODELS, fit_models
 from ident.dataset import IODataset
 from ident.excitation import ExcitationSignal, RandomSteps
@@ -74,8 +77,6 @@ SEGMENT_S = PAPER4_N_SAMPLES * PAPER4_DT_S
 SLIP_MIN_SD_PPM = 0.1
 #: Orders of the joint NOx + NH3 slip state-space model.
 MIMO_ORDERS = (2, 4)
-#: One-sided significance level of the verdicts.
-ALPHA = 0.05
 
 
 @dataclass(frozen=True)
@@ -162,30 +163,6 @@ def study_segment(ds: IODataset, models: tuple[str, ...] = MODELS, mimo_orders: 
                              f"{entry['nh3_slip_sd_ppm'][1]:.2g} ppm (estimation / validation), "
                              f"not both above {SLIP_MIN_SD_PPM} ppm")
     return entry
-
-
-def summarise(values: Any) -> dict[str, float]:
-    """Median, quartiles, mean, SD, min and max of a sample of FIT values."""
-    v = np.asarray(values, dtype=float)
-    if v.size == 0:
-        raise ValueError("cannot summarise an empty sample")
-    q25, med, q75 = np.percentile(v, [25, 50, 75])
-    return {"n": int(v.size), "median": float(med), "q25": float(q25), "q75": float(q75), "mean": float(v.mean()),
-            "sd": float(v.std(ddof=1)) if v.size > 1 else 0.0, "min": float(v.min()), "max": float(v.max())}
-
-
-def verdict(diff: Any) -> dict[str, Any]:
-    """Does the first model of a pair beat the second? Paired FIT differences over segments (module docstring)."""
-    d = np.asarray(diff, dtype=float)
-    if d.size == 0 or not np.all(np.isfinite(d)):
-        raise ValueError("diff must be a non-empty array of finite paired differences")
-    mean, median = float(d.mean()), float(np.median(d))
-    se = float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else float("inf")
-    t = mean / se if se > 0 else (float("inf") if mean > 0 else 0.0)
-    p = float(stats.wilcoxon(d, alternative="greater").pvalue) if np.any(d != 0) else 1.0
-    word = "holds" if median > 0 and p < ALPHA else ("not significant" if median > 0 else "does not hold")
-    return {"median_diff": median, "mean_diff": mean, "se": se, "t": t, "p_wilcoxon": p,
-            "wins": int(np.sum(d > 0)), "n": int(d.size), "verdict": word}
 
 
 def conclusions(per_segment: list[dict[str, Any]], key: str = "nox") -> tuple[dict[str, Any], dict[str, Any]]:
