@@ -112,7 +112,9 @@ def identify(seeds: tuple[int, ...] = IDENT_SEEDS,
             "validation_rmse_ppm_whtc": {n: float(np.sqrt(np.mean((val.y[:, i] - yp[:, i]) ** 2)))
                                          for i, n in enumerate(("tailpipe_nox", "nh3", "sensor"))},
             "validation_mean_ppm_whtc": {n: [float(val.y[:, i].mean()), float(yp[:, i].mean())]
-                                         for i, n in enumerate(("tailpipe_nox", "nh3", "sensor"))}}
+                                         for i, n in enumerate(("tailpipe_nox", "nh3", "sensor"))},
+            "validation_sd_ppm_whtc": {n: float(val.y[:, i].std())
+                                       for i, n in enumerate(("tailpipe_nox", "nh3", "sensor"))}}
 
 
 def identified_mpc(ident: dict[str, Any], quick: bool = False,

@@ -37,6 +37,8 @@ BLACK_BOX = ("linear", "rpem", "hammerstein_wiener")
 EXCITATION_SEED = 3  # random cycle of the black-box excitation record (held-out cycles are WHTC/WHSC)
 VALIDATION_SEED = 99  # sensor noise and excitation seed of the validation record (on the WHTC)
 QUICK_SEGMENT_S = 600.0  # s of each held-out cycle in --quick
+#: A held-out output whose SD is below this [ppm] is reported without a FIT (the FIT of a flat signal is noise).
+FLAT_OUTPUT_SD_PPM = 0.1
 
 
 # ---------------------------------------------------------------------------------------------------- data
@@ -102,7 +104,9 @@ def identify_black_box(out: Path, include_hw: bool) -> dict[str, Any]:
             continue
         yp = model.predict(uv)
         fits = {n: float(fit_percent(yv[:, i], yp[:, i])) for i, n in enumerate(val.output_names)}
-        entry: dict[str, Any] = {"fit_seconds": time.perf_counter() - t0, "validation_fit_percent": fits}
+        entry: dict[str, Any] = {"fit_seconds": time.perf_counter() - t0, "validation_fit_percent": fits,
+                                 "validation_sd_ppm": {n: float(val.y[:, i].std())
+                                                       for i, n in enumerate(val.output_names)}}
         if isinstance(model, OutputStack):
             entry["paths"] = [str(save_model(m, out / f"model_{name}_{i}")) for i, m in enumerate(model.models_)]
         else:
@@ -269,22 +273,40 @@ def _fit_plot(ident: dict[str, Any], out: Path) -> Path:
     return p
 
 
+def _fits_line(fits: dict[str, float], sds: dict[str, float]) -> str:
+    """``name FIT %`` per output; "n/a (flat)" where the held-out output barely moves."""
+    return ", ".join(f"{k} n/a (flat: SD {sd:.2g} ppm)" if sd < FLAT_OUTPUT_SD_PPM else f"{k} {v:.1f} %"
+                     for (k, v), sd in zip(fits.items(), sds.values()))
+
+
 def _report(doc: dict[str, Any], figures: list[Path], out: Path) -> Path:
     lines = ["# Identify-then-control", "",
-             f"Mode: {'quick (first %d s of the WHTC, shorter horizons)' % QUICK_SEGMENT_S if doc['quick'] else 'full cycles'}; "
+             f"Mode: {f'quick (first {QUICK_SEGMENT_S:.0f} s of the WHTC, shorter horizons)' if doc['quick'] else 'full cycles'}; "
              f"wall time {doc['wall_time_s']:.0f} s.", "", "## Identification (validation FIT on held-out WHTC excitation data)", "",
              "| model | tailpipe NOx | NH3 slip | NOx sensor | fit time [s] |", "|---|---|---|---|---|"]
     models = dict(doc["identification"]["black_box"]["models"])
     gb = doc["identification"]["greybox"]
     models["greybox"] = {"validation_fit_percent": gb.get("validation_fit_percent_whtc", {}),
+                         "validation_sd_ppm": gb.get("validation_sd_ppm_whtc", {}),
                          "fit_seconds": gb.get("fit_seconds", float("nan"))}
+    flat = False
     for n, m in models.items():
         if "error" in m:
             lines.append(f"| {n} | failed: {m['error']} | | | |")
             continue
-        v = list(m["validation_fit_percent"].values())
-        v += [float("nan")] * (3 - len(v))
-        lines.append(f"| {n} | {v[0]:.1f} % | {v[1]:.1f} % | {v[2]:.1f} % | {m.get('fit_seconds', float('nan')):.0f} |")
+        cells = []
+        for i, f in enumerate(list(m["validation_fit_percent"].values())[:3]):
+            sd = list(m.get("validation_sd_ppm", {}).values())
+            if i < len(sd) and sd[i] < FLAT_OUTPUT_SD_PPM:
+                cells.append(f"n/a (flat: SD {sd[i]:.2g} ppm)")
+                flat = True
+            else:
+                cells.append(f"{f:.1f} %")
+        cells += ["-"] * (3 - len(cells))
+        lines.append(f"| {n} | {' | '.join(cells)} | {m.get('fit_seconds', float('nan')):.0f} |")
+    if flat:
+        lines += ["", f"n/a: the held-out output barely moves (SD below {FLAT_OUTPUT_SD_PPM} ppm), so its FIT "
+                      "(error relative to the output's own variation) says nothing about the model."]
     lines += ["", "## Closed loop on held-out cycles", ""]
     for cycle, ctrl in doc["kpis"].items():
         lines += [f"### {cycle}", "", "| controller | NOx conversion | tailpipe NOx [g/kWh] | mean / peak NH3 slip [ppm] | "
@@ -293,8 +315,9 @@ def _report(doc: dict[str, Any], figures: list[Path], out: Path) -> Path:
             lines.append(f"| {n} | {100 * k.get('nox_conversion', float('nan')):.1f} % | "
                          f"{k.get('tailpipe_nox_g_per_kwh', float('nan')):.3f} | {k.get('mean_nh3_slip_ppm', float('nan')):.1f} / "
                          f"{k.get('peak_nh3_slip_ppm', float('nan')):.0f} | {k.get('adblue_g', float('nan')):.0f} | "
-                         f"{k.get('solve_time_ms_median', float('nan')):.1f} / {k.get('solve_time_ms_p95', float('nan')):.1f} | "
-                         f"{k.get('solver_failures', float('nan')):.0f} |")
+                         + (f"{k['solve_time_ms_median']:.1f} / {k.get('solve_time_ms_p95', float('nan')):.1f} | "
+                            f"{k.get('solver_failures', 0):.0f} |" if np.isfinite(k.get("solve_time_ms_median", np.nan)) else
+                            "- (no solver) | - |"))
         lines.append("")
     lines += ["## Gap closed", "", "Fraction of the look-up-table-to-oracle gap in tailpipe NOx closed by the NMPC on each "
               "identified model (1 = as good as the oracle, 0 = no better than the look-up table), counted only "
@@ -326,9 +349,11 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
     print("1-2. excitation experiments and identification ...", flush=True)
     ident = {"greybox": cb.identify(), "black_box": identify_black_box(out, include_hw=not quick)}
     for n, m in ident["black_box"]["models"].items():
-        print(f"  {n}: " + (m["error"] if "error" in m else ", ".join(
-            f"{k} {v:.1f} %" for k, v in m["validation_fit_percent"].items()) + f" ({m['fit_seconds']:.0f} s)"))
-    print("  greybox: " + ", ".join(f"{k} {v:.1f} %" for k, v in ident["greybox"]["validation_fit_percent_whtc"].items()))
+        print(f"  {n}: " + (m["error"] if "error" in m else _fits_line(m["validation_fit_percent"],
+                                                                       m["validation_sd_ppm"])
+                            + f" ({m['fit_seconds']:.0f} s)"))
+    gb = ident["greybox"]
+    print("  greybox: " + _fits_line(gb["validation_fit_percent_whtc"], gb["validation_sd_ppm_whtc"]))
     rl, rl_note = cb.available_rl() if include_rl else ([], "RL policies not requested")
     models = ["greybox"] + [n for n in BLACK_BOX if "paths" in ident["black_box"]["models"].get(n, {})]
     names = ["mpc_oracle", *[f"mpc_{m}" for m in models], "pi", "lookup_table", *rl]
