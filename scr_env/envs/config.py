@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import math
+import numbers
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -72,14 +74,48 @@ class EnvConfig:
 
 
 def _number(name: str, value: Any, lo: float, hi: float, lo_open: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    """``value`` as a float in [lo, hi] (or (lo, hi]); ValueError naming ``name`` for anything else, including
+    bools and numeric strings (no silent coercion)."""
+    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
+        value = value[()]
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        # ValueError, as every argument error of the environment (make_config's contract), also for a wrong type
+        raise ValueError(f"{name} must be a number, got {value!r}")  # noqa: TRY004
+    v = float(value)
     if not math.isfinite(v) or v < lo or v > hi or (lo_open and v == lo):
         interval = f"{'(' if lo_open else '['}{lo}, {hi}]"
         raise ValueError(f"{name} must be a finite number in {interval}, got {value!r}")
     return v
+
+
+def flag(name: str, value: Any) -> bool:
+    """``value`` as a bool: True/False or a numpy bool; ValueError naming ``name`` for anything else (a string such
+    as "no" or "False", a number, None), which ``bool()`` would silently turn into True or False."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise ValueError(f"{name} must be True or False, got {value!r} ({type(value).__name__})")
+
+
+def reset_options(options: Any, allowed: tuple[str, ...]) -> dict[str, Any]:
+    """The ``options`` of ``reset`` as a dict: None or a mapping whose keys are all in ``allowed`` (ValueError
+    naming ``options`` otherwise)."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise ValueError(f"options must be None or a dict with keys among {', '.join(allowed)}; "  # noqa: TRY004
+                         f"got {type(options).__name__} {options!r}")
+    unknown = [k for k in options if k not in allowed]
+    if unknown:
+        raise ValueError(f"options has unknown key(s) {', '.join(sorted(map(repr, unknown)))}; "
+                         f"use {', '.join(allowed)}")
+    return dict(options)
+
+
+def reset_coverage(options: dict[str, Any], default: float) -> float:
+    """``options["initial_coverage"]`` (``default`` if absent) checked to be a number in [0, 1]."""
+    if "initial_coverage" not in options:
+        return default
+    return _number("options['initial_coverage']", options["initial_coverage"], 0.0, 1.0)
 
 
 def make_config(cycle: Any = "whtc", catalyst: Any = "cu_zeolite", dt: float = 0.5, ageing: float = 0.0,
@@ -88,7 +124,14 @@ def make_config(cycle: Any = "whtc", catalyst: Any = "cu_zeolite", dt: float = 0
                 nh3_sensor: bool = False, privileged: bool = False, cold_start: bool = False,
                 randomize: float = 0.0, initial_coverage: float = 0.0,
                 random_cycle_duration_s: float = 1800.0) -> EnvConfig:
-    """Check every environment argument and return an :class:`EnvConfig` (ValueError naming the argument)."""
+    """Check every environment argument and return an :class:`EnvConfig` (ValueError naming the argument).
+
+    Numbers must be numbers (not strings or bools) and flags must be bools (``True``/``False`` or numpy bools): a
+    string such as ``nh3_sensor="no"`` raises instead of counting as True."""
+    sensor_noise = flag("sensor_noise", sensor_noise)
+    nh3_sensor = flag("nh3_sensor", nh3_sensor)
+    privileged = flag("privileged", privileged)
+    cold_start = flag("cold_start", cold_start)
     dt = _number("dt", dt, 0.0, MAX_DT_S, lo_open=True)
     if isinstance(cycle, str) and cycle.strip().lower() in available_cycles():
         cycle = cycle.strip().lower()
@@ -129,6 +172,6 @@ def make_config(cycle: Any = "whtc", catalyst: Any = "cu_zeolite", dt: float = 0
     initial_coverage = _number("initial_coverage", initial_coverage, 0.0, 1.0)
     duration = _number("random_cycle_duration_s", random_cycle_duration_s, 10.0, 86400.0)
     return EnvConfig(cycle=cycle, catalyst=cat, dt=dt, ageing=ageing, dosing=dosing, sensors=sensors,
-                     reward_weights=weights, action_mode=action_mode, nh3_sensor=bool(nh3_sensor),
-                     privileged=bool(privileged), cold_start=bool(cold_start), randomize=randomize,
+                     reward_weights=weights, action_mode=action_mode, nh3_sensor=nh3_sensor,
+                     privileged=privileged, cold_start=cold_start, randomize=randomize,
                      initial_coverage=initial_coverage, random_cycle_duration_s=duration)

@@ -55,7 +55,7 @@ class RewardWeights:
     def __post_init__(self) -> None:
         for name in ("nox", "nh3", "adblue"):
             v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"reward_weights.{name} must be a non-negative finite number, got {v!r}")
 
     def as_array(self) -> np.ndarray:

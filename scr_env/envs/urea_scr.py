@@ -10,9 +10,16 @@ from gymnasium import spaces
 
 from scr_env.cycles import ExhaustTrace
 from scr_env.envs import core
-from scr_env.envs.config import O2_FRACTION, EnvConfig, make_config
+from scr_env.envs.config import O2_FRACTION, EnvConfig, flag, make_config, reset_coverage, reset_options
 from scr_env.params import pack, randomised
 from scr_env.physics import kernel as K
+
+RESET_OPTIONS = ("cold_start", "initial_coverage", "cycle_seed")
+#: the longest ``disturbance_preview`` accepted, in steps, when the episode is shorter [chosen: 32 MB of float64; rows
+#: past the end of the cycle only repeat its last row]
+MAX_PREVIEW_STEPS = 1_000_000
+_F32 = np.dtype(np.float32)
+_F64 = np.dtype(np.float64)
 
 
 class UreaSCREnv(gym.Env):
@@ -35,8 +42,9 @@ class UreaSCREnv(gym.Env):
     | a in [-1, 1] | AdBlue injection rate | (a + 1) / 2 * ``dosing.max_rate_g_s`` [g/s] (3.0 g/s default) |
 
     With ``action_mode="physical"`` the space is ``Box(0, max_rate_g_s, (1,))`` in g/s. Out-of-range actions are
-    clipped to the bounds (the clipped value is what is injected, charged and observed); NaN, inf or a wrong shape
-    raise ``ValueError``.
+    clipped to the bounds (the clipped value is what is injected, charged and observed). An action must be a real
+    number: a float or int scalar or array of one element. NaN, inf, a wrong shape or anything else (None, a string,
+    a bool, a complex number) raises ``ValueError``.
 
     ## Observation Space
     ``Box(float32)``; what a truck measures, with lags and noise (see :class:`scr_env.params.SensorParams`):
@@ -51,6 +59,12 @@ class UreaSCREnv(gym.Env):
     | 5 | tailpipe NH3 sensor (only with ``nh3_sensor=True``) | ppm | 0 to 10000 |
     | next N | NH3 coverage of each cell (only with ``privileged=True``; never measurable) | - | 0 to 1 |
 
+    A reading outside its range is clipped to it in the observation (a sensor saturates); the physics, rewards and
+    ``info`` use the real value. The shipped cycles stay well inside (WHTC, WHSC and random cycles of the default
+    engine: flow up to about 18 mol/s, inlet temperature up to about 780 K, NOx up to about 2300 ppm); a measured
+    cycle (CSV, ExhaustTrace) or a larger engine above 100 mol/s is simulated at its real flow but observed at
+    100 mol/s.
+
     ## Rewards
     An economic cost in grams of AdBlue equivalent (weights ``reward_weights``, see
     :class:`scr_env.envs.core.RewardWeights`): per step
@@ -60,8 +74,11 @@ class UreaSCREnv(gym.Env):
     ## Starting State
     Hot start by default: the cells at the SCR inlet temperature of the first sample, NH3 coverage
     ``initial_coverage`` (0 by default); ``cold_start=True`` starts the aftertreatment at 298.15 K (cold WHTC).
-    ``reset(options=...)`` accepts ``cold_start`` (bool), ``initial_coverage`` (float in [0, 1]) and, for the
-    ``"random"`` cycle, ``cycle_seed`` (int). Sensor noise and the random cycle come from ``self.np_random``.
+    ``reset(options=...)`` takes None or a dict with the keys ``cold_start`` (True or False),
+    ``initial_coverage`` (a number in [0, 1]) and, for ``cycle="random"`` only, ``cycle_seed`` (a non-negative int;
+    None: drawn from ``self.np_random``). Any other key or value raises ``ValueError`` naming it, before the
+    reset changes anything (``cycle_seed`` on a fixed cycle included: it would be ignored). Sensor noise and the
+    random cycle come from ``self.np_random``.
 
     ## Episode End
     Truncation at the end of the drive cycle (3600 steps for the WHTC at 0.5 s). The episode never terminates.
@@ -88,6 +105,9 @@ class UreaSCREnv(gym.Env):
     | randomize | 0.0 | domain randomisation spread (e.g. 0.2 = +/-20 %) of capacity, activity and volume per reset |
     | initial_coverage | 0.0 | NH3 coverage at reset |
     | render_mode | None | "rgb_array" or "human": plot of the episode so far |
+
+    Flags (``sensor_noise``, ``nh3_sensor``, ``privileged``, ``cold_start``) must be ``True``/``False`` (or numpy
+    bools) and numbers must be numbers: ``nh3_sensor="no"`` or ``dt="0.5"`` raise ``ValueError`` naming the argument.
 
     ## Version History
     * v0: initial version.
@@ -130,18 +150,22 @@ class UreaSCREnv(gym.Env):
 
     # ------------------------------------------------------------------------------------------------- reset/step
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
-        super().reset(seed=seed)
         cfg = self.config
-        options = dict(options or {})
-        unknown = set(options) - {"cold_start", "initial_coverage", "cycle_seed"}
-        if unknown:
-            raise ValueError(f"options has unknown keys {sorted(unknown)}; use cold_start, initial_coverage, cycle_seed")
-        cold = bool(options.get("cold_start", cfg.cold_start))
-        coverage = float(options.get("initial_coverage", cfg.initial_coverage))
-        if not (math.isfinite(coverage) and 0.0 <= coverage <= 1.0):
-            raise ValueError(f"options['initial_coverage'] must be in [0, 1], got {coverage!r}")
+        # every option is checked before anything changes (a failed reset leaves the generator and episode as they were)
+        options = reset_options(options, RESET_OPTIONS)
+        cold = flag("options['cold_start']", options["cold_start"]) if "cold_start" in options else cfg.cold_start
+        coverage = reset_coverage(options, cfg.initial_coverage)
+        cycle_seed = options.get("cycle_seed")
+        if cycle_seed is not None:
+            if cfg.cycle != "random":
+                raise ValueError(f"options['cycle_seed'] applies to cycle='random' only; this environment replays the "
+                                 f"fixed cycle {self._fixed_trace.name!r} (got cycle_seed={cycle_seed!r})")
+            if isinstance(cycle_seed, (bool, np.bool_)) or not isinstance(cycle_seed, (int, np.integer)) \
+                    or cycle_seed < 0:
+                raise ValueError(f"options['cycle_seed'] must be a non-negative integer (the seed of the random "
+                                 f"cycle), got {cycle_seed!r}")
+        super().reset(seed=seed)
         if cfg.cycle == "random":
-            cycle_seed = options.get("cycle_seed")
             if cycle_seed is None:
                 cycle_seed = int(self.np_random.integers(0, 2**31 - 1))
             self.trace = cfg.trace("random", int(cycle_seed), cold)
@@ -183,16 +207,10 @@ class UreaSCREnv(gym.Env):
 
     def _dose(self, action: Any) -> tuple[float, float]:
         """(AdBlue rate g/s, normalised action) from an action after validation and clipping."""
-        if type(action) is np.ndarray and action.shape == (1,):
-            v = float(action[0])
+        if type(action) is np.ndarray and action.shape == (1,) and (action.dtype is _F32 or action.dtype is _F64):
+            v = float(action[0])  # the fast path: what agents pass
         else:
-            try:
-                arr = np.asarray(action, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise ValueError(f"action must be a number array of shape (1,), got {action!r}") from None
-            if arr.size != 1 or arr.ndim > 1:
-                raise ValueError(f"action must have shape (1,), got shape {np.shape(action)}")
-            v = float(arr.reshape(-1)[0])
+            v = self._action_value(action)
         if not math.isfinite(v):
             raise ValueError(f"action must be finite, got {v!r}")
         if self.config.action_mode == "normalized":
@@ -200,6 +218,25 @@ class UreaSCREnv(gym.Env):
             return 0.5 * (a + 1.0) * self.max_rate_g_s, a
         rate = min(max(v, 0.0), self.max_rate_g_s)
         return rate, self._to_norm(rate)
+
+    @staticmethod
+    def _action_value(action: Any) -> float:
+        """The value of an action that is not a float32/float64 array of shape (1,): a real number (float or int
+        scalar or array of one element), else ValueError."""
+        expected = "action must be a real number or an array of shape (1,) (float or int)"
+        if action is None:
+            raise ValueError(f"{expected}, got None")
+        try:
+            arr = np.asarray(action)
+        except (TypeError, ValueError):
+            raise ValueError(f"{expected}, got {action!r}") from None
+        if arr.dtype.kind not in "fiu":
+            what = {"c": "complex", "b": "bool", "U": "string", "S": "bytes", "O": "object"}.get(arr.dtype.kind,
+                                                                                                 str(arr.dtype))
+            raise ValueError(f"{expected}, got a {what} value {action!r}")
+        if arr.size != 1 or arr.ndim > 1:
+            raise ValueError(f"action must have shape (1,), got shape {arr.shape}")
+        return float(arr.reshape(-1)[0])
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         if self._needs_reset:
@@ -249,8 +286,20 @@ class UreaSCREnv(gym.Env):
 
     def disturbance_preview(self, horizon: int) -> np.ndarray:
         """The next ``horizon`` rows of (flow mol/s, inlet temperature K, NOx ppm, NO2 fraction) of the cycle, the
-        last row repeated past its end: the cycle preview an MPC may be given (privileged information)."""
-        idx = np.minimum(np.arange(self._k, self._k + int(horizon)), max(self._n - 1, 0))
+        last row repeated past its end: the cycle preview an MPC may be given (privileged information).
+
+        ``horizon`` is a number of steps: an integer in [0, max(episode length, ``MAX_PREVIEW_STEPS`` = 10**6)]
+        (ValueError otherwise); 0 gives an empty (0, 4) array. RuntimeError before the first ``reset``."""
+        if self.trace is None:
+            raise RuntimeError("disturbance_preview() needs an episode: call reset() first")
+        if isinstance(horizon, (bool, np.bool_)) or not isinstance(horizon, (int, np.integer)):
+            raise ValueError(f"horizon must be a non-negative integer number of steps, got {horizon!r}")  # noqa: TRY004
+        h = int(horizon)
+        cap = max(self._n, MAX_PREVIEW_STEPS)
+        if not 0 <= h <= cap:
+            raise ValueError(f"horizon must be in [0, {cap}] steps (rows past the end of the cycle only repeat its "
+                             f"last row), got {horizon!r}")
+        idx = np.minimum(np.arange(self._k, self._k + h), max(self._n - 1, 0))
         return self._drive[idx, :4].copy()
 
     # --------------------------------------------------------------------------------------------------- render

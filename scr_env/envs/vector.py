@@ -10,9 +10,11 @@ from gymnasium.vector.utils import batch_space
 
 from scr_env.cycles import ExhaustTrace
 from scr_env.envs import core
-from scr_env.envs.config import O2_FRACTION, make_config
+from scr_env.envs.config import O2_FRACTION, flag, make_config, reset_coverage, reset_options
 from scr_env.params import aged, pack, randomised
 from scr_env.physics import kernel as K
+
+RESET_OPTIONS = ("initial_coverage", "reset_mask")
 
 
 class UreaSCRVectorEnv(VectorEnv):
@@ -30,6 +32,15 @@ class UreaSCRVectorEnv(VectorEnv):
     | cycle | "whtc" | one cycle for all plants, or a sequence of ``num_envs`` cycles (names, paths, ExhaustTraces) |
     | random_offsets | False | start each episode at a random step of its cycle, so plants are not in lockstep |
     | random_cycle_pool | 32 | with cycle "random": size of the pool of seeded random cycles drawn from at each reset |
+
+    ``reset(options=...)`` takes None or a dict with the keys ``initial_coverage`` (a number in [0, 1], for the
+    plants reset) and ``reset_mask``: Gymnasium's boolean array of shape ``(num_envs,)``, True for the plants to
+    reset (the others keep running); integer indices, other dtypes or shapes raise ``ValueError``, and so does a
+    partial mask on the first reset or together with a seed (the cycles of all plants are rebuilt from the seed).
+    Any other key raises ``ValueError``, before the reset changes anything.
+
+    Actions: a float or int array of shape ``(num_envs, 1)`` or ``(num_envs,)``, clipped to the action space; NaN,
+    inf, another shape or a non-real dtype (bool, complex, object, string) raise ``ValueError``.
 
     Autoreset: ``AutoresetMode.SAME_STEP``. When a plant's cycle ends, the step returns its reset observation, with
     ``infos["final_obs"][i]`` and ``infos["final_info"]`` (holding ``episode_kpis``) for the ended plants.
@@ -66,7 +77,7 @@ class UreaSCRVectorEnv(VectorEnv):
         self.config = cfg
         self.dt = cfg.dt
         self.max_rate_g_s = cfg.dosing.max_rate_g_s
-        self.random_offsets = bool(random_offsets)
+        self.random_offsets = flag("random_offsets", random_offsets)
         self._normalized_actions = cfg.action_mode == "normalized"
         self.random_cycle_pool = int(random_cycle_pool)
         self.render_mode = None
@@ -125,13 +136,11 @@ class UreaSCRVectorEnv(VectorEnv):
         self._trace_base = np.concatenate([[0], np.cumsum(self._trace_len)[:-1]]).astype(np.int64)
         self._flat = np.ascontiguousarray(np.concatenate(tables, axis=0))
 
-    def _reset_envs(self, idx: np.ndarray, options: dict[str, Any]) -> None:
-        """Start new episodes for the plants ``idx`` (in place; writes their observations)."""
+    def _reset_envs(self, idx: np.ndarray, coverage: float) -> None:
+        """Start new episodes for the plants ``idx`` at NH3 coverage ``coverage`` (in place; writes their
+        observations)."""
         b = self._batch
         rng = self.np_random
-        coverage = float(options.get("initial_coverage", self.config.initial_coverage))
-        if not (np.isfinite(coverage) and 0.0 <= coverage <= 1.0):
-            raise ValueError(f"options['initial_coverage'] must be in [0, 1], got {coverage!r}")
         for i in idx:
             key = self._cycle_keys[i]
             cfg = self._configs[key]
@@ -163,23 +172,31 @@ class UreaSCRVectorEnv(VectorEnv):
 
     # ----------------------------------------------------------------------------------------------- API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
-        super().reset(seed=seed)
-        options = dict(options or {})
-        unknown = set(options) - {"initial_coverage", "reset_mask"}
-        if unknown:
-            raise ValueError(f"options has unknown keys {sorted(unknown)}; use initial_coverage, reset_mask")
-        if seed is not None or not self._rng_ready:
-            self._build_traces(np.random.default_rng(self.np_random.integers(0, 2**63 - 1)))
-            self._rng_ready = True
+        # every option is checked before anything changes (a failed reset leaves the generator and plants as they were)
+        options = reset_options(options, RESET_OPTIONS)
+        coverage = reset_coverage(options, self.config.initial_coverage)
+        rebuild = seed is not None or not self._rng_ready
         mask = options.get("reset_mask")
         if mask is None:
             idx = np.arange(self.num_envs)
         else:
-            mask = np.asarray(mask, dtype=bool)
-            if mask.shape != (self.num_envs,):
-                raise ValueError(f"options['reset_mask'] must have shape ({self.num_envs},), got {mask.shape}")
-            idx = np.flatnonzero(mask)
-        self._reset_envs(idx, options)
+            expected = (f"options['reset_mask'] must be a boolean array of shape ({self.num_envs},) (True: reset that "
+                        f"env; for env indices i use np.isin(np.arange(num_envs), i))")
+            try:
+                mask_arr = np.asarray(mask)
+            except (TypeError, ValueError):
+                raise ValueError(f"{expected}, got {mask!r}") from None
+            if mask_arr.dtype != np.bool_ or mask_arr.shape != (self.num_envs,):
+                raise ValueError(f"{expected}, got dtype {mask_arr.dtype} and shape {mask_arr.shape}")
+            idx = np.flatnonzero(mask_arr)
+            if rebuild and idx.size != self.num_envs:
+                raise ValueError("options['reset_mask'] must select every env on the first reset and whenever a seed "
+                                 "is given (the cycles of all envs are rebuilt from the seed)")
+        super().reset(seed=seed)
+        if rebuild:
+            self._build_traces(np.random.default_rng(self.np_random.integers(0, 2**63 - 1)))
+            self._rng_ready = True
+        self._reset_envs(idx, coverage)
         self._needs_reset = False
         names = np.array([self._traces[t].name for t in self._env_trace], dtype=object)
         return self._batch.obs.copy(), {"cycle": names, "_cycle": self._ones.copy()}
@@ -188,7 +205,10 @@ class UreaSCRVectorEnv(VectorEnv):
         """``actions`` as a float (num_envs,) array (values unchecked)."""
         a = np.asarray(actions)
         if a.dtype != np.float32 and a.dtype != np.float64:
-            a = np.asarray(actions, dtype=np.float64)
+            if a.dtype.kind not in "fiu":
+                raise ValueError(f"actions must be real numbers (a float or int array of shape ({self.num_envs}, 1)), "
+                                 f"got dtype {a.dtype}")
+            a = a.astype(np.float64)
         if a.shape not in ((self.num_envs, 1), (self.num_envs,)):
             raise ValueError(f"actions must have shape ({self.num_envs}, 1), got {a.shape}")
         return a.reshape(self.num_envs)
@@ -244,7 +264,7 @@ class UreaSCRVectorEnv(VectorEnv):
             infos["_final_obs"] = mask
             infos["final_info"] = final_info
             infos["_final_info"] = mask
-            self._reset_envs(ended_idx, {})
+            self._reset_envs(ended_idx, self.config.initial_coverage)
         return b.obs.copy(), rewards, terminated, truncated, infos
 
     @property

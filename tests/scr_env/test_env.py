@@ -302,3 +302,254 @@ def test_readme_usage_example_runs() -> None:
     assert len(example.strip().splitlines()) <= 12
     namespace: dict = {}
     exec(compile(example, "README.md", "exec"), namespace)
+
+
+# ------------------------------------------------------------------------------------------------ input validation
+FLAGS = ("sensor_noise", "nh3_sensor", "privileged", "cold_start")
+NOT_BOOLS = ["no", "False", "", 1, 0, 1.0, None, [True]]
+
+
+@pytest.mark.parametrize("name", FLAGS)
+@pytest.mark.parametrize("value", NOT_BOOLS)
+def test_flag_arguments_must_be_bools(name, value) -> None:
+    """A string such as "no" used to count as True (bool("no")); now every flag names itself in a ValueError."""
+    with pytest.raises(ValueError, match=rf"^{name} must be True or False"):
+        gym.make(ENV_ID, **{name: value})
+    with pytest.raises(ValueError, match=rf"^{name} must be True or False"):
+        gym.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", **{name: value})
+
+
+@pytest.mark.parametrize("value", NOT_BOOLS)
+def test_vector_random_offsets_must_be_a_bool(value) -> None:
+    with pytest.raises(ValueError, match=r"^random_offsets must be True or False"):
+        UreaSCRVectorEnv(num_envs=2, random_offsets=value)
+
+
+def test_numpy_bools_are_accepted_as_flags() -> None:
+    env = UreaSCREnv(nh3_sensor=np.True_, privileged=np.False_, cold_start=np.bool_(False))
+    assert env.config.nh3_sensor is True and env.config.privileged is False and env.config.cold_start is False
+    assert env.observation_space.shape == (6,)
+    assert UreaSCRVectorEnv(num_envs=2, random_offsets=np.True_).random_offsets is True
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"dt": "0.5"}, "dt"), ({"ageing": True}, "ageing"), ({"randomize": None}, "randomize"),
+    ({"initial_coverage": "0.2"}, "initial_coverage"), ({"random_cycle_duration_s": "60"}, "random_cycle_duration_s"),
+    ({"reward_weights": {"nox": True}}, "reward_weights.nox"),
+])
+def test_numeric_arguments_are_not_coerced_from_strings_or_bools(kwargs, name) -> None:
+    with pytest.raises(ValueError, match=rf"^{re.escape(name)} must be"):
+        UreaSCREnv(**kwargs)
+
+
+def test_numeric_arguments_accept_numpy_numbers() -> None:
+    env = UreaSCREnv(dt=np.float32(0.5), ageing=np.int64(0), initial_coverage=np.array(0.25))
+    assert env.dt == 0.5 and env.config.initial_coverage == 0.25
+
+
+@pytest.mark.parametrize("options, match", [
+    ({"cold_start": "no"}, r"options\['cold_start'\] must be True or False"),
+    ({"cold_start": 1}, r"options\['cold_start'\] must be True or False"),
+    ({"cold_start": None}, r"options\['cold_start'\] must be True or False"),
+    ({"initial_coverage": "x"}, r"options\['initial_coverage'\] must be a number"),
+    ({"initial_coverage": None}, r"options\['initial_coverage'\] must be a number"),
+    ({"initial_coverage": True}, r"options\['initial_coverage'\] must be a number"),
+    ({"initial_coverage": 1.5}, r"options\['initial_coverage'\] must be a finite number in \[0.0, 1.0\]"),
+    ({"initial_coverage": float("nan")}, r"options\['initial_coverage'\]"),
+    ([1], r"^options must be None or a dict"),
+    ("cold_start", r"^options must be None or a dict"),
+    ({"coldstart": True}, r"^options has unknown key\(s\) 'coldstart'"),
+    ({"cycle_seed": 3}, r"options\['cycle_seed'\] applies to cycle='random' only"),
+])
+def test_reset_options_errors_name_the_option(options, match) -> None:
+    env = UreaSCREnv()
+    with pytest.raises(ValueError, match=match):
+        env.reset(seed=0, options=options)
+
+
+def test_reset_option_cold_start_takes_bools() -> None:
+    env = UreaSCREnv()
+    env.reset(seed=0, options={"cold_start": np.True_})
+    np.testing.assert_allclose(env.state["temperature_k"], 298.15)
+    env.reset(seed=0, options={"cold_start": False})
+    assert env.state["temperature_k"].min() > 450.0
+
+
+@pytest.mark.parametrize("seed", ["a", 1.7, 2.0, -1, True, [3]])
+def test_cycle_seed_must_be_a_non_negative_integer(seed) -> None:
+    env = UreaSCREnv(cycle="random", random_cycle_duration_s=60.0)
+    with pytest.raises(ValueError, match=r"options\['cycle_seed'\] must be a non-negative integer"):
+        env.reset(seed=0, options={"cycle_seed": seed})
+
+
+def test_cycle_seed_accepts_numpy_integers_and_none_means_drawn() -> None:
+    env = UreaSCREnv(cycle="random", random_cycle_duration_s=60.0)
+    env.reset(seed=0, options={"cycle_seed": np.int64(5)})
+    a = env.trace.nox_ppm.copy()
+    env.reset(seed=0, options={"cycle_seed": 5})
+    np.testing.assert_array_equal(a, env.trace.nox_ppm)
+    env.reset(seed=0, options={"cycle_seed": None})
+    b = env.trace.nox_ppm.copy()
+    env.reset(seed=0)
+    np.testing.assert_array_equal(b, env.trace.nox_ppm)
+    UreaSCREnv().reset(seed=0, options={"cycle_seed": None})  # None is "no seed" on any cycle
+
+
+def test_a_failed_reset_changes_nothing() -> None:
+    env = UreaSCREnv()
+    env.reset(seed=0)
+    action = np.array([0.1], dtype=np.float32)
+    for _ in range(5):
+        env.step(action)
+    rng_state = env.np_random.bit_generator.state
+    state = env.state
+    with pytest.raises(ValueError, match="initial_coverage"):
+        env.reset(seed=123, options={"initial_coverage": "x"})
+    assert env.np_random.bit_generator.state == rng_state and env.step_index == 5
+    np.testing.assert_array_equal(env.state["nh3_coverage"], state["nh3_coverage"])
+    env.step(action)  # the episode goes on
+    assert env.step_index == 6
+
+
+@pytest.mark.parametrize("bad", [None, np.array([0.5 + 1j]), 0.5 + 0j, np.array([True]), True, np.array(["0.5"]),
+                                 np.array([0.5], dtype=object), "0.5"])
+def test_non_real_actions_raise_naming_the_action(bad) -> None:
+    env = UreaSCREnv()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"^action must be a real number or an array of shape \(1,\)"):
+        env.step(bad)
+    assert env.step_index == 0
+
+
+def test_int_and_other_real_actions_step_as_their_float_value() -> None:
+    runs = []
+    for action in (np.array([1.0]), 1, np.array([1], dtype=np.int32), [1.0], np.float16(1.0), np.array(1.0)):
+        env = UreaSCREnv(sensor_noise=False)
+        env.reset(seed=0)
+        runs.append(env.step(action)[0])
+    for obs in runs[1:]:
+        np.testing.assert_array_equal(obs, runs[0])
+
+
+@pytest.mark.parametrize("horizon", [-1, 10**9, 2.0, True, "3", None])
+def test_disturbance_preview_rejects_bad_horizons(horizon) -> None:
+    env = UreaSCREnv()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"^horizon must be"):
+        env.disturbance_preview(horizon)
+
+
+def test_disturbance_preview_horizons() -> None:
+    with pytest.raises(RuntimeError, match="reset"):
+        UreaSCREnv().disturbance_preview(3)
+    env = UreaSCREnv(cycle="random", random_cycle_duration_s=10.0)  # 20 steps
+    env.reset(seed=0)
+    assert env.disturbance_preview(0).shape == (0, 4)
+    prev = env.disturbance_preview(np.int64(100))  # past the end of the cycle: its last row repeated
+    assert prev.shape == (100, 4)
+    np.testing.assert_array_equal(prev[19:], np.repeat(prev[19:20], 81, axis=0))
+    from scr_env.envs.urea_scr import MAX_PREVIEW_STEPS
+
+    assert env.disturbance_preview(MAX_PREVIEW_STEPS).shape == (MAX_PREVIEW_STEPS, 4)
+    with pytest.raises(ValueError, match="horizon"):
+        env.disturbance_preview(MAX_PREVIEW_STEPS + 1)
+
+
+def _trace_with_flow(flow_mol_s: float, n: int = 40) -> scr_env.ExhaustTrace:
+    ones = np.ones(n)
+    return scr_env.ExhaustTrace(
+        name="big", dt=0.5, time_s=np.arange(n) * 0.5, engine_speed_rpm=0 * ones, engine_torque_nm=0 * ones,
+        engine_power_kw=0 * ones, exhaust_mass_flow_kg_s=flow_mol_s * 0.0289 * ones,
+        exhaust_flow_mol_s=flow_mol_s * ones, scr_inlet_temperature_k=550.0 * ones, nox_ppm=400.0 * ones,
+        no2_fraction=0.3 * ones)
+
+
+def test_flow_above_the_observation_bound_is_clipped_in_the_observation_only() -> None:
+    """Documented: a reading beyond its range saturates in the observation; the physics uses the real flow."""
+    assert UreaSCREnv().observation_space.high[2] == 100.0
+    tailpipe = {}
+    for flow in (100.0, 150.0):
+        env = UreaSCREnv(cycle=_trace_with_flow(flow), sensor_noise=False)
+        obs, _ = env.reset(seed=0)
+        assert obs[2] == 100.0 and env.observation_space.contains(obs)
+        for _ in range(10):
+            obs, _, _, _, info = env.step(np.array([0.0], dtype=np.float32))
+        assert obs[2] == 100.0 and env.observation_space.contains(obs)
+        tailpipe[flow] = info["tailpipe_nox_ppm"]
+    assert tailpipe[150.0] > tailpipe[100.0]  # less residence time at the real, higher flow: more NOx slips
+
+
+def test_shipped_cycles_stay_inside_the_observed_flow_range() -> None:
+    from scr_env.cycles import load_cycle, random_cycle
+
+    traces = [load_cycle(c, cold_start=cold) for c in ("whtc", "whsc") for cold in (False, True)]
+    traces += [random_cycle(1800.0, seed) for seed in range(5)]
+    assert max(t.exhaust_flow_mol_s.max() for t in traces) < 25.0  # bound 100 mol/s; 2 % sensor noise
+
+
+# ------------------------------------------------------------------------------------- vector env input validation
+def test_vector_reset_mask_must_be_a_boolean_array_of_num_envs() -> None:
+    venv = UreaSCRVectorEnv(num_envs=6)
+    venv.reset(seed=0)
+    for bad in ([0, 2, 5], [0, 1, 0, 1, 0, 1], np.ones(6, dtype=np.int8), np.ones(5, dtype=bool),
+                np.ones((6, 1), dtype=bool), "all", [[1], [1, 2]]):
+        with pytest.raises(ValueError, match=r"options\['reset_mask'\] must be a boolean array of shape \(6,\)"):
+            venv.reset(options={"reset_mask": bad})
+
+
+def test_vector_reset_mask_resets_exactly_the_masked_envs() -> None:
+    venv = UreaSCRVectorEnv(num_envs=6)
+    venv.reset(seed=0)
+    for _ in range(5):
+        venv.step(np.full((6, 1), 0.5, dtype=np.float32))
+    mask = np.isin(np.arange(6), [0, 2, 5])
+    obs, _ = venv.reset(options={"reset_mask": mask})
+    np.testing.assert_array_equal(obs[:, 4], np.where(mask, -1.0, 0.5))  # previous action: -1 after a reset
+    _, _, _, _, info = venv.step(np.full((6, 1), 0.5, dtype=np.float32))
+    np.testing.assert_array_equal(info["step_index"], np.where(mask, 1, 6))
+    obs, _ = venv.reset(options={"reset_mask": [True] * 6})  # a list of bools is a boolean array
+    assert np.all(obs[:, 4] == -1.0)
+
+
+def test_vector_partial_reset_mask_needs_started_envs_and_no_seed() -> None:
+    partial = np.array([True, False, True])
+    venv = UreaSCRVectorEnv(num_envs=3, cycle="random", random_cycle_duration_s=20.0)
+    with pytest.raises(ValueError, match=r"options\['reset_mask'\] must select every env on the first reset"):
+        venv.reset(seed=0, options={"reset_mask": partial})
+    venv.reset(seed=0)
+    with pytest.raises(ValueError, match=r"options\['reset_mask'\].*seed"):
+        venv.reset(seed=1, options={"reset_mask": partial})
+    venv.reset(options={"reset_mask": partial})
+    venv.reset(seed=1, options={"reset_mask": np.ones(3, dtype=bool)})
+
+
+@pytest.mark.parametrize("options, match", [
+    ({"initial_coverage": "x"}, r"options\['initial_coverage'\] must be a number"),
+    ({"initial_coverage": None}, r"options\['initial_coverage'\] must be a number"),
+    ({"initial_coverage": -0.5}, r"options\['initial_coverage'\]"),
+    ([1], r"^options must be None or a dict"),
+    ({"cold_start": True}, r"^options has unknown key\(s\) 'cold_start'"),
+])
+def test_vector_reset_options_errors_name_the_option(options, match) -> None:
+    venv = UreaSCRVectorEnv(num_envs=2)
+    with pytest.raises(ValueError, match=match):
+        venv.reset(seed=0, options=options)
+
+
+@pytest.mark.parametrize("bad", [np.full((2, 1), 0.5 + 0j), np.ones((2, 1), dtype=bool), None, [["a"], ["b"]],
+                                 np.array([[0.5], [None]], dtype=object)])
+def test_vector_non_real_actions_raise(bad) -> None:
+    venv = UreaSCRVectorEnv(num_envs=2)
+    venv.reset(seed=0)
+    with pytest.raises(ValueError, match=r"^actions must be real numbers"):
+        venv.step(bad)
+
+
+def test_vector_int_actions_step_as_floats() -> None:
+    runs = []
+    for actions in (np.zeros((2, 1)), np.zeros((2, 1), dtype=np.int64), [0, 0]):
+        venv = UreaSCRVectorEnv(num_envs=2, sensor_noise=False)
+        venv.reset(seed=0)
+        runs.append(venv.step(actions)[0])
+    np.testing.assert_array_equal(runs[0], runs[1])
+    np.testing.assert_array_equal(runs[0], runs[2])
