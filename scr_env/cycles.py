@@ -34,7 +34,8 @@ column                      unit      notes
 time_s                      s         required, strictly increasing (shifted so that the trace starts at 0)
 exhaust_flow_mol_s          mol/s     required unless exhaust_mass_flow_kg_s is given (M = 28.9 g/mol)
 exhaust_mass_flow_kg_s      kg/s      alternative to exhaust_flow_mol_s
-scr_inlet_temperature_k     K         required
+scr_inlet_temperature_k     K         required, in kelvin: a value below 200 K raises (degC data), a cycle
+                                      below 273.15 K throughout warns (degC data or a sub-zero cold start)
 nox_ppm                     ppm       required, SCR-inlet NOx (mole ppm)
 no2_fraction                -         optional NO2/NOx in [0, 1], default 0.3 (a DOC in its active window)
 engine_power_kw             kW        optional, default 0: then ``positive_work_kwh`` is 0 and g/kWh figures are
@@ -51,6 +52,7 @@ from __future__ import annotations
 import functools
 import math
 import os
+import warnings
 from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
@@ -73,6 +75,10 @@ __all__ = ["ExhaustTrace", "available_cycles", "denormalise", "from_csv", "load_
 
 _MAX_DT_S = 10.0  # s; coarser sampling would alias the cycles' 1 Hz content [chosen]
 _RANDOM_DEFAULT_DURATION_S = 1800.0  # s, as long as the WHTC [chosen]
+# Below this an SCR-inlet temperature in a CSV is taken for degC (or another unit), not kelvin: -73 degC, colder than
+# the coldest air a truck starts in (record lows of inhabited places are about -68 degC, 205 K), so no measured
+# cold start is rejected, while degC data with idle, motoring or a cold start (values of 20-200) are [chosen]
+_MIN_PLAUSIBLE_TEMPERATURE_K = 200.0
 _DEFAULT_NO2_FRACTION = 0.3  # - , user CSV without NO2/NOx: a DOC in its active window [chosen, PHYSICS.md 4]
 _TABLES = {"whtc": "whtc_normalized.csv", "whsc": "whsc_normalized_1hz.csv"}
 _CSV_COLUMNS = (
@@ -178,6 +184,12 @@ def _check_dt(dt: float) -> float:
     if not (math.isfinite(value) and 0.0 < value <= _MAX_DT_S):
         raise ValueError(f"dt must be finite and in (0, {_MAX_DT_S}] s, got {dt!r}")
     return value
+
+
+def _check_flag(name: str, value: object) -> bool:
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise ValueError(f"{name} must be True or False, got {value!r} ({type(value).__name__})")
 
 
 def _read_csv(text: str, source: str) -> dict[str, np.ndarray]:
@@ -438,7 +450,7 @@ def random_cycle(
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     engine = EngineParams() if engine is None else engine
-    return _random_trace(duration, int(seed), dt, engine, bool(cold_start)).copy()
+    return _random_trace(duration, int(seed), dt, engine, _check_flag("cold_start", cold_start)).copy()
 
 
 # ------------------------------------------------------------------------------------------------------------ CSV
@@ -475,6 +487,19 @@ def _from_csv_uncached(path: Path, dt: float) -> ExhaustTrace:
             raise ValueError(f"{path}: column {c} must lie in [{lo}, {hi}] (negative flows/concentrations are invalid)")
     if np.any(cols["scr_inlet_temperature_k"] <= 0.0):
         raise ValueError(f"{path}: column scr_inlet_temperature_k must be positive (kelvin)")
+    t_min = float(cols["scr_inlet_temperature_k"].min())
+    if t_min < _MIN_PLAUSIBLE_TEMPERATURE_K:
+        row = int(np.argmin(cols["scr_inlet_temperature_k"])) + 1
+        raise ValueError(
+            f"{path}: column scr_inlet_temperature_k goes down to {t_min:g} K ({t_min - 273.15:.1f} degC, data row "
+            f"{row}), colder than any exhaust can be (the limit is {_MIN_PLAUSIBLE_TEMPERATURE_K:g} K); the column "
+            f"must be in kelvin: if the data are in degC, convert them with T[K] = T[degC] + 273.15")
+    t_max = float(cols["scr_inlet_temperature_k"].max())
+    if t_max < 273.15:
+        warnings.warn(
+            f"{path}: column scr_inlet_temperature_k never reaches 273.15 K (max {t_max:g} K = {t_max - 273.15:.1f} "
+            f"degC): are the temperatures in degC? They are read as kelvin (T[K] = T[degC] + 273.15); a sub-zero "
+            f"cold-start segment would be right as it is", UserWarning, stacklevel=4)
     t_rel = time - time[0]
     n_steps = math.floor(t_rel[-1] / dt + 1e-9) + 1
     grid = np.arange(n_steps, dtype=np.float64) * dt
@@ -522,7 +547,14 @@ def from_csv(path: str | os.PathLike, dt: float = 0.5) -> ExhaustTrace:
     ------
     ValueError
         Unreadable file, missing columns (named), NaN or infinite values, non-increasing time, negative flows or
-        concentrations, NO2/NOx outside [0, 1], non-positive temperatures, fewer than two rows, or a bad ``dt``.
+        concentrations, NO2/NOx outside [0, 1], non-positive temperatures or temperatures below 200 K (data in
+        degC rather than kelvin), fewer than two rows, or a bad ``dt``.
+
+    Warns
+    -----
+    UserWarning
+        The whole temperature column below 273.15 K: likely degC, but a sub-zero cold-start segment is possible, so
+        the data are used as they are.
     """
     dt = _check_dt(dt)
     p = Path(os.fspath(path)).expanduser().resolve()
@@ -570,9 +602,11 @@ def load_cycle(
     Raises
     ------
     ValueError
-        Unknown cycle name (the valid ones are listed), missing seed, bad ``dt``, or invalid CSV content.
+        Unknown cycle name (the valid ones are listed), missing seed, bad ``dt``, ``cold_start`` not True or False,
+        or invalid CSV content.
     """
     dt = _check_dt(dt)
+    cold_start = _check_flag("cold_start", cold_start)
     if engine is not None and not isinstance(engine, EngineParams):
         raise ValueError(f"engine must be an EngineParams or None, got {type(engine).__name__}")
     if isinstance(cycle, str) and cycle.strip().lower() in available_cycles():
@@ -582,7 +616,7 @@ def load_cycle(
             if seed is None:
                 raise ValueError("seed: the 'random' cycle needs an integer seed")
             return random_cycle(duration_s, seed, dt=dt, engine=engine, cold_start=cold_start)
-        return _regulatory_trace(key, dt, engine, bool(cold_start)).copy()
+        return _regulatory_trace(key, dt, engine, cold_start).copy()
     if isinstance(cycle, (str, os.PathLike)):
         p = Path(os.fspath(cycle)).expanduser()
         if p.is_file():

@@ -269,3 +269,65 @@ def test_exhaust_trace_validates_lengths():
         ExhaustTrace(name="x", dt=1.0, time_s=ones, engine_speed_rpm=ones, engine_torque_nm=ones,
                      engine_power_kw=ones, exhaust_mass_flow_kg_s=ones, exhaust_flow_mol_s=ones,
                      scr_inlet_temperature_k=ones, nox_ppm=np.ones(2), no2_fraction=ones)
+
+
+# -------------------------------------------------------------------------------------- temperature unit checks
+_HEADER = "time_s,exhaust_flow_mol_s,scr_inlet_temperature_k,nox_ppm\n"
+
+
+def _temperature_csv(tmp_path, temps) -> Path:
+    rows = "".join(f"{i},5,{t},300\n" for i, t in enumerate(temps))
+    return _write(tmp_path / "temps.csv", _HEADER + rows)
+
+
+def test_csv_temperatures_in_degc_are_rejected(tmp_path):
+    """A cycle in degC (here a cold start: 20 degC rising to 350 degC) read as kelvin would be 20 K: impossible."""
+    path = _temperature_csv(tmp_path, [20, 80, 150, 250, 350])
+    with pytest.raises(ValueError, match=r"scr_inlet_temperature_k goes down to 20 K.*degC.*T\[K\] = T\[degC\] \+ "
+                                         r"273\.15"):
+        from_csv(path)
+    with pytest.raises(ValueError, match="scr_inlet_temperature_k"):
+        load_cycle(path)
+
+
+def test_csv_cycle_below_freezing_throughout_warns_but_loads(tmp_path):
+    """All values in 200-273 K: probably degC of a hot cycle (250 degC), possibly a sub-zero cold-start segment."""
+    path = _temperature_csv(tmp_path, [250, 255, 260])
+    with pytest.warns(UserWarning, match=r"scr_inlet_temperature_k never reaches 273.15 K.*degC"):
+        tr = from_csv(path, dt=1.0)
+    np.testing.assert_array_equal(tr.scr_inlet_temperature_k, [250.0, 255.0, 260.0])
+
+
+def test_csv_arctic_cold_start_in_kelvin_is_accepted_silently(tmp_path):
+    import warnings
+
+    path = _temperature_csv(tmp_path, [205.0, 230.0, 280.0, 400.0, 520.0])  # -68 degC ambient, warming up
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tr = from_csv(path, dt=1.0)
+    assert tr.scr_inlet_temperature_k[0] == 205.0
+
+
+def test_shipped_cycles_pass_the_temperature_unit_checks(tmp_path):
+    import warnings
+
+    for cycle in ("whtc", "whsc"):
+        for cold in (False, True):
+            path = tmp_path / f"{cycle}_{cold}.csv"
+            load_cycle(cycle, cold_start=cold).to_csv(path)
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                from_csv(path)
+
+
+@pytest.mark.parametrize("value", ["no", "False", 1, 0, None])
+def test_cold_start_must_be_a_bool(value):
+    with pytest.raises(ValueError, match=r"^cold_start must be True or False"):
+        load_cycle("whtc", cold_start=value)
+    with pytest.raises(ValueError, match=r"^cold_start must be True or False"):
+        random_cycle(60.0, seed=1, cold_start=value)
+
+
+def test_cold_start_accepts_numpy_bools():
+    np.testing.assert_array_equal(load_cycle("whtc", cold_start=np.True_).scr_inlet_temperature_k,
+                                  load_cycle("whtc", cold_start=True).scr_inlet_temperature_k)
