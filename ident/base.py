@@ -64,6 +64,65 @@ def as_2d(name: str, a: Any, n_columns: int | None = None, min_rows: int = 1) ->
     return arr
 
 
+def check_not_constant(name: str, a: np.ndarray, model: str = "model", signal: str = "output") -> None:
+    """Refuse a signal that carries no information about the dynamics.
+
+    ``a`` is a validated ``(n_samples, n_signals)`` array (see :func:`as_2d`). Raises ``ValueError`` naming ``name``
+    and the column(s) (``model`` is used as "the <model>"):
+
+    * ``"<name> has no columns"`` if it holds no signal at all;
+    * ``"<name> has a non-finite variance ..."`` if a column's values are so large that its variance overflows;
+    * ``"<name> is constant ..."`` if a column is *exactly* constant over all samples (a constant output carries
+      no information about the dynamics; an all-zero one is the common case).
+
+    Only a column constant over the whole record is refused: a signal that is constant over part of it (an NH3 slip
+    that is zero most of the time) is fine. ``model`` names the estimator in the message, ``signal`` says what the
+    array is (``"output"``, ``"input"``).
+    """
+    if a.shape[1] == 0:
+        raise ValueError(f"{name} has no columns: the {model} needs at least one {signal} signal")
+    if a.shape[0] == 0:
+        return
+    with np.errstate(over="ignore", invalid="ignore"):
+        var = a.var(axis=0)
+    bad = np.flatnonzero(~np.isfinite(var))
+    if bad.size:
+        raise ValueError(f"{name} has a non-finite variance in column(s) {bad.tolist()} (values up to "
+                         f"{np.abs(a[:, bad]).max():.3g} overflow): rescale it before identifying the {model}")
+    const = np.flatnonzero(np.all(a == a[:1], axis=0))
+    if const.size:
+        values = ", ".join(f"{v:g}" for v in a[0, const])
+        raise ValueError(f"{name} is constant in column(s) {const.tolist()} (value {values} at all {a.shape[0]} "
+                         f"samples): a constant {signal} carries no information about the dynamics, so the {model} "
+                         "cannot be identified from it")
+
+
+def as_vector(name: str, a: Any, size: int, what: str = "values") -> np.ndarray:
+    """Validate a fixed-size vector such as an initial state and return it as float64 of shape ``(size,)``.
+
+    Raises ``ValueError`` naming ``name`` for a wrong number of elements or NaN/inf.
+    """
+    arr = np.asarray(a, dtype=float)
+    if arr.size != size:
+        raise ValueError(f"{name} must have {size} {what}, got shape {arr.shape}")
+    arr = arr.reshape(size)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or inf")
+    return arr
+
+
+def check_positive_int(name: str, value: Any, minimum: int = 1, what: str = "") -> int:
+    """Return ``value`` as an int, or raise ``ValueError`` naming ``name`` if it is not an integer >= ``minimum``."""
+    try:
+        ok = int(value) == value and value >= minimum
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        kind = "a positive integer" if minimum == 1 else f"an integer >= {minimum}"
+        raise ValueError(f"{name} must be {kind}{' ' + what if what else ''}, got {value}")
+    return int(value)
+
+
 def check_same_length(**arrays: np.ndarray) -> int:
     """Raise ``ValueError`` if the named arrays do not have the same number of samples; return that number."""
     lengths = {k: len(v) for k, v in arrays.items()}

@@ -39,6 +39,14 @@ def _names(given: Sequence[str] | None, prefix: str, n: int, what: str) -> tuple
     return names
 
 
+def _as_float(value: Any) -> float:
+    """``float(value)``, or NaN if it is not a number (so the caller's message names the argument)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
 @dataclass(frozen=True, eq=False)  # own __eq__: fields hold arrays
 class IODataset:
     """A uniformly sampled MIMO input-output record.
@@ -63,7 +71,8 @@ class IODataset:
     Raises
     ------
     ValueError
-        NaN/inf values, mismatched lengths, a non-positive ``dt``, or wrong/duplicate names.
+        NaN/inf values, mismatched lengths, a non-positive or non-finite ``dt``, a non-finite ``t0``, or
+        wrong/duplicate names.
     """
 
     u: np.ndarray
@@ -80,9 +89,11 @@ class IODataset:
         u = as_2d("u", self.u)
         y = as_2d("y", self.y)
         check_same_length(u=u, y=y)
-        dt = float(self.dt)
+        dt, t0 = _as_float(self.dt), _as_float(self.t0)
         if not np.isfinite(dt) or dt <= 0:
-            raise ValueError(f"dt must be a positive sample time in seconds, got {self.dt}")
+            raise ValueError(f"dt must be a positive sample time in seconds, got {self.dt!r}")
+        if not np.isfinite(t0):
+            raise ValueError(f"t0 must be a finite time in seconds, got {self.t0!r}")
         inames = _names(self.input_names, "u", u.shape[1], "input_names")
         onames = _names(self.output_names, "y", y.shape[1], "output_names")
         all_names = inames + onames
@@ -94,7 +105,7 @@ class IODataset:
         y.setflags(write=False)
         # frozen dataclass: object.__setattr__ is the documented way to normalise fields in __post_init__
         for k, v in {"u": u, "y": y, "dt": dt, "input_names": inames, "output_names": onames, "input_units": iunits,
-                         "output_units": ounits, "t0": float(self.t0), "meta": dict(self.meta)}.items():
+                         "output_units": ounits, "t0": t0, "meta": dict(self.meta)}.items():
             object.__setattr__(self, k, v)
 
     # ----------------------------------------------------------------------------------------------- shape

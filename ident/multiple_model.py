@@ -28,9 +28,9 @@ from typing import Any, Literal
 import numpy as np
 from scipy.optimize import least_squares
 
-from ident.base import as_2d, check_is_fitted, check_same_length
+from ident.base import as_2d, as_vector, check_is_fitted, check_same_length
 from ident.io import load_model, register_model, save_model
-from ident.linear._statespace import _per_input, validate_fit_data
+from ident.linear._statespace import _per_input, data_columns, validate_fit_data
 
 
 def quantile_edges(s: np.ndarray, n_regions: int) -> np.ndarray:
@@ -183,8 +183,8 @@ class MultipleModel:
 
     # ---------------------------------------------------------------------------------------------- fit
     def fit(self, u: Any, y: Any) -> MultipleModel:
-        u_a = np.atleast_2d(np.asarray(u, dtype=float).T).T
-        self._setup(u_a.shape[1])
+        nu_data, _ = data_columns(u, y, "multiple model")
+        self._setup(nu_data)
         na = int(self.na)
         p_loc = na + int(self._nb.sum()) + 1
         u, y = validate_fit_data(u, y, self.n_regions_ * p_loc, max(na, self._d), "multiple model")
@@ -291,9 +291,12 @@ class MultipleModel:
         check_is_fitted(self, "theta_")
         u = as_2d("u", u, n_columns=self.n_inputs_)
         if x0 is None:
-            x0 = self.initial_state(u, np.atleast_1d(y0).reshape(-1, 1)[:1]) if y0 is not None else \
-                np.zeros(self.n_states_)
-        return self._simulate(u, np.asarray(x0, dtype=float).reshape(self.n_states_))[:, None]
+            if y0 is not None:
+                y0a = as_2d("y0", np.atleast_1d(np.asarray(y0, dtype=float)).reshape(-1, 1))
+                x0 = self.initial_state(u, y0a[:1])
+            else:
+                x0 = np.zeros(self.n_states_)
+        return self._simulate(u, as_vector("x0", x0, self.n_states_, "values (one per state)"))[:, None]
 
     def predict_k_step(self, u: Any, y: Any, k: int) -> np.ndarray:
         """``yhat(t | t-k)``: k-step-ahead predictions with measured outputs up to t - k, shape (N, 1)."""

@@ -48,14 +48,17 @@ class Normalizer:
         """Compute mean and SD per column; raises ``ValueError`` on NaN or on a constant column (its SD is 0, so the
         normalised signal would be undefined)."""
         x = as_2d("x", x, min_rows=2)
+        if not (int(self.ddof) == self.ddof and 0 <= self.ddof < x.shape[0]):
+            raise ValueError(f"ddof must be a non-negative integer below the number of samples ({x.shape[0]}), got "
+                             f"{self.ddof}")
         sd = x.std(axis=0, ddof=self.ddof)
         mean = x.mean(axis=0)
         # relative threshold: a column at 1e-3 ppm levels with tiny variation is not constant, one at 500 K
         # varying by 1e-13 K is
         const = sd <= 1e-12 * np.maximum(1.0, np.abs(mean))
         if np.any(const):
-            names = list(self.names) if self.names is not None else [f"column {i}" for i in range(x.shape[1])]
-            bad = [names[i] for i in np.flatnonzero(const)]
+            names = list(self.names) if self.names is not None else []
+            bad = [names[i] if i < len(names) else f"column {i}" for i in np.flatnonzero(const)]
             raise ValueError(f"cannot normalise a constant signal: {', '.join(map(str, bad))} has zero standard "
                              "deviation in the estimation data")
         self.mean_ = mean
@@ -68,8 +71,10 @@ class Normalizer:
         """A normalizer with given statistics (e.g. Paper III Table 1), no fitting needed."""
         mean_a = np.atleast_1d(np.asarray(mean, dtype=float))
         sd_a = np.atleast_1d(np.asarray(sd, dtype=float))
-        if mean_a.shape != sd_a.shape or np.any(sd_a <= 0) or not np.all(np.isfinite(mean_a)):
-            raise ValueError("mean and sd must have equal shapes, finite values and positive sd")
+        if mean_a.shape != sd_a.shape or not np.all(np.isfinite(mean_a)) or not np.all(np.isfinite(sd_a)) \
+                or np.any(sd_a <= 0):
+            raise ValueError(f"mean and sd must have equal shapes, finite values and positive sd, got mean "
+                             f"{mean_a.tolist()} and sd {sd_a.tolist()}")
         obj = cls(names=names)
         obj.mean_, obj.scale_ = mean_a, sd_a
         return obj

@@ -60,11 +60,11 @@ from scipy.linalg import block_diag
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
-from ident.base import as_2d, check_is_fitted, check_same_length
+from ident.base import as_2d, as_vector, check_is_fitted, check_same_length
 from ident.hammerstein_wiener.blocks import Identity, StaticNonlinearity, block_from_dict
 from ident.io import load_model, register_model, save_model
 from ident.linear import OutputError
-from ident.linear._statespace import _per_input, simulate_ss, tf_to_ss, validate_fit_data
+from ident.linear._statespace import _per_input, data_columns, simulate_ss, tf_to_ss, validate_fit_data
 from ident.linear.oe import _KAPPA_MAX, poly_from_reflection, reflection_from_poly, stabilize_poly
 from ident.metrics import fit_percent
 
@@ -260,8 +260,8 @@ class HammersteinWiener:
         simulated through every sample, so zero weights leave a gap in the criterion, not in the record (blocked
         cross-validation on one record).
 
-        Raises ``ValueError`` for NaN/inf, mismatched lengths, constant inputs, more than one output, a wrong
-        number of input blocks or too few samples.
+        Raises ``ValueError`` for NaN/inf, mismatched lengths, constant inputs, an output constant over all samples
+        (``"y is constant ..."``), more than one output, a wrong number of input blocks or too few samples.
         """
         grid = np.atleast_1d(np.asarray(self.smoothness, dtype=float))
         if grid.ndim != 1 or grid.size == 0 or np.any(~np.isfinite(grid)) or np.any(grid < 0):
@@ -357,6 +357,7 @@ class HammersteinWiener:
 
     def _prepare(self, u: Any, y: Any, sample_weight: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Validate, set up the working blocks and orders, fit the linear start; return (u, y, theta0)."""
+        data_columns(u, y, "Hammerstein-Wiener model")
         u_arr = as_2d("u", u)
         y_arr = as_2d("y", y)
         if y_arr.shape[1] != 1:
@@ -388,8 +389,14 @@ class HammersteinWiener:
             # the best linear model; with sample weights, fitted on the longest run of weighted samples only (a
             # start: the weighted fit refines it), so samples held out by zero weights never enter the fit
             a, b = _longest_run(self._sqrt_weights(sample_weight, yv.size) > 0)
-            lin = OutputError(nb=tuple(nb), nf=tuple(nf), nk=tuple(nk), max_nfev=self.max_nfev).fit(v0[a:b],
-                                                                                                    yv[a:b])
+            try:
+                lin = OutputError(nb=tuple(nb), nf=tuple(nf), nk=tuple(nk), max_nfev=self.max_nfev).fit(v0[a:b],
+                                                                                                        yv[a:b])
+            except ValueError as err:
+                part = "" if sample_weight is None else f" on the longest run of weighted samples ({a} to {b - 1})"
+                raise ValueError("cannot fit the Hammerstein-Wiener model: its linear start, an output-error model "
+                                 "from the outputs of the initial input blocks (called u below) to y"
+                                 f"{part}, failed: {err}") from err
         elif isinstance(lin, HammersteinWiener) and not hasattr(lin, "b_"):
             # a template: fit it on these data (same weights) first
             lin = HammersteinWiener(**lin.get_params()).fit(u_arr, yv, sample_weight=sample_weight)
@@ -563,7 +570,7 @@ class HammersteinWiener:
         """
         u = self._u(u)
         if x0 is not None:
-            x0 = np.asarray(x0, dtype=float).reshape(self.n_states_)
+            x0 = as_vector("x0", x0, self.n_states_, "values (one per state of the linear block)")
         elif y0 is not None:
             y0a = as_2d("y0", y0, n_columns=1)
             n0 = min(len(y0a), len(u))
@@ -575,9 +582,12 @@ class HammersteinWiener:
     def predict_k_step(self, u: Any, y: Any, k: int) -> np.ndarray:
         """k-step-ahead prediction. The model has no noise model (output-error structure), so every horizon gives
         the simulated output from the x(0) estimated on the record (as the linear output-error model)."""
+        u_arr = self._u(u)
+        y_arr = as_2d("y", y, n_columns=1)
+        check_same_length(u=u_arr, y=y_arr)
         if int(k) != k or k < 1:
             raise ValueError(f"k must be a positive integer number of steps, got {k}")
-        return self.predict(u, y0=y)
+        return self.predict(u_arr, y0=y_arr)
 
     # ---------------------------------------------------------------------------------------------- export
     def to_casadi(self) -> Any:

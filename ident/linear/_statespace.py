@@ -22,27 +22,48 @@ from typing import Any
 
 import numpy as np
 
-from ident.base import as_2d, check_is_fitted, check_same_length
+from ident.base import as_2d, as_vector, check_is_fitted, check_not_constant, check_same_length
 from ident.io import load_model, save_model
+
+
+def data_columns(u: Any, y: Any, model: str = "model") -> tuple[int, int]:
+    """Numbers of input and output columns of estimation data, for setting up a model's orders before
+    :func:`validate_fit_data` checks the data in full; raises ``ValueError`` naming ``u`` or ``y`` for a wrong
+    shape, NaN/inf, no samples or no columns."""
+    u = as_2d("u", u)
+    y = as_2d("y", y)
+    for name, a, signal in (("u", u, "input"), ("y", y, "output")):
+        if a.shape[1] == 0:
+            raise ValueError(f"{name} has no columns: the {model} needs at least one {signal} signal")
+    return u.shape[1], y.shape[1]
 
 
 def validate_fit_data(u: Any, y: Any, n_params: int, max_lag: int = 0, model: str = "model"
                       ) -> tuple[np.ndarray, np.ndarray]:
     """Check estimation data and return float arrays (N, nu), (N, ny).
 
-    Raises ``ValueError`` naming the problem: NaN/inf, mismatched lengths, a constant input column (it carries no
-    information and makes the regression singular), or too few samples for the number of parameters per output.
+    Raises ``ValueError`` naming the argument and the problem: NaN/inf, no samples or no columns, mismatched lengths,
+    a constant input column (to within 1e-12 relative: it carries no information and makes the regression
+    singular), an output column that is exactly constant over all samples (``"y is constant ..."``: it carries no
+    information about the dynamics; see :func:`ident.base.check_not_constant`, which also refuses a non-finite
+    variance), or too few samples for the number of parameters per output. ``model`` names the estimator in the
+    messages. Every estimator of :mod:`ident.linear`, the Hammerstein-Wiener and the multiple-model estimators
+    validate their data here.
     """
     u = as_2d("u", u)
     y = as_2d("y", y)
     n = check_same_length(u=u, y=y)
+    check_not_constant("y", y, model, "output")
+    if u.shape[1] == 0:
+        raise ValueError(f"u has no columns: the {model} needs at least one input signal")
     const = np.flatnonzero(np.ptp(u, axis=0) <= 1e-12 * np.maximum(1.0, np.abs(u).max(axis=0)))
     if const.size:
-        raise ValueError(f"input column(s) {const.tolist()} are constant: a constant input carries no information "
-                         f"for identifying a {model} (remove it or excite it)")
+        raise ValueError(f"u is constant in column(s) {const.tolist()}: a constant input carries no information "
+                         f"for identifying the {model} (remove it or excite it)")
+    check_not_constant("u", u, model, "input")
     if n - max_lag < n_params + 1:
-        raise ValueError(f"too few samples for the model order: {n} samples, but a {model} with {n_params} "
-                         f"parameters per output and {max_lag} lags needs more than {n_params + max_lag + 1}")
+        raise ValueError(f"too few samples for the model order: {n} samples, but the {model}, with {n_params} "
+                         f"parameters per output and {max_lag} lags, needs more than {n_params + max_lag + 1}")
     return u, y
 
 
@@ -62,6 +83,10 @@ def simulate_ss(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, u: n
 
 
 def spectral_radius(A: np.ndarray) -> float:
+    """Largest absolute eigenvalue of the square matrix ``A`` (0.0 for an empty 0 x 0 matrix).
+
+    A discrete-time system ``x+ = A x`` is asymptotically stable exactly when this is below 1.
+    """
     return float(np.max(np.abs(np.linalg.eigvals(A)))) if A.size else 0.0
 
 
@@ -236,7 +261,7 @@ class LinearStateSpaceModel:
         """
         u = self._u(u)
         if x0 is not None:
-            x0 = np.asarray(x0, dtype=float).reshape(self.n_states_)
+            x0 = as_vector("x0", x0, self.n_states_, "values (one per state)")
         elif y0 is not None:
             y0 = as_2d("y0", np.atleast_1d(y0)[None, :] if np.ndim(y0) == 1 and self.n_outputs_ > 1 else y0,
                        n_columns=self.n_outputs_)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ident.io import register_model
-from ident.linear._statespace import LinearStateSpaceModel, _per_input, validate_fit_data
+from ident.linear._statespace import LinearStateSpaceModel, _per_input, data_columns, validate_fit_data
 
 
 @register_model("arx")
@@ -87,11 +87,10 @@ class ARX(LinearStateSpaceModel):
             Non-negative weights per sample (weighted least squares, used by the local models of
             :mod:`ident.multiple_model`).
         """
-        u_arr = np.atleast_2d(np.asarray(u, dtype=float).T).T
-        na, nb, nk, d = self._orders(u_arr.shape[1])
+        nu_data, ny_data = data_columns(u, y, "ARX model")
+        na, nb, nk, d = self._orders(nu_data)
         lag = max(na, d)
-        y_arr = np.atleast_2d(np.asarray(y, dtype=float).T).T
-        n_par = na * y_arr.shape[1] + int(nb.sum())
+        n_par = na * ny_data + int(nb.sum())
         if n_par == 0:
             raise ValueError("the ARX model has no coefficients (na = 0 and nb = 0)")
         u, y = validate_fit_data(u, y, n_par, lag, "ARX model")
@@ -111,8 +110,7 @@ class ARX(LinearStateSpaceModel):
             rhs = np.vstack([rhs, np.zeros((phi.shape[1], ny))])
         theta, *_ = np.linalg.lstsq(lhs, rhs, rcond=None)
         if np.linalg.matrix_rank(lhs) < phi.shape[1]:
-            raise ValueError("the ARX regression is rank deficient: inputs are not persistently exciting for these "
-                             "orders (or weights leave too few samples)")
+            raise ValueError(self._rank_message(phi * sw, w, na * ny, nb, nk))
         resid = target - phi @ theta
         self.noise_variance_ = np.average(resid**2, axis=0, weights=w) if w.sum() > 0 else resid.var(axis=0)
         a = np.zeros((na, ny, ny))
@@ -127,6 +125,21 @@ class ARX(LinearStateSpaceModel):
         self.a_, self.b_ = a, b
         self._realise()
         return self
+
+    def _rank_message(self, lhs: np.ndarray, w: np.ndarray, n_y_cols: int, nb: np.ndarray, nk: np.ndarray) -> str:
+        """Why the weighted regression ``lhs`` (past outputs first, then lagged inputs) is rank deficient."""
+        n_cols = lhs.shape[1]
+        n_weighted = int(np.count_nonzero(w > 0))
+        if n_weighted < n_cols:
+            cause = (f"the sample weights leave {n_weighted} weighted samples for {n_cols} coefficients per output")
+        elif np.linalg.matrix_rank(lhs[:, n_y_cols:]) < n_cols - n_y_cols:
+            cause = (f"the inputs u are not persistently exciting for these orders (nb = {nb.tolist()}, "
+                     f"nk = {nk.tolist()})")
+        else:
+            cause = (f"the past outputs are linearly dependent on each other and the lagged inputs: y is (nearly) "
+                     f"constant, or (nearly) noise-free data are fitted with more past outputs (na = {self.na}) "
+                     "than their order needs")
+        return f"cannot fit the ARX model: its least-squares regression is rank deficient: {cause}"
 
     def _n_params(self) -> int:
         ny = self.C_.shape[0]

@@ -22,7 +22,13 @@ from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
 from ident.io import register_model
-from ident.linear._statespace import LinearStateSpaceModel, _per_input, tf_to_ss, validate_fit_data
+from ident.linear._statespace import (
+    LinearStateSpaceModel,
+    _per_input,
+    data_columns,
+    tf_to_ss,
+    validate_fit_data,
+)
 from ident.linear.arx import ARX
 
 _KAPPA_MAX = 0.995  # keep initial reflection coefficients off the unit circle so arctanh stays finite
@@ -144,7 +150,11 @@ class OutputError(LinearStateSpaceModel):
         # ARX with a common denominator of order max(nf) gives B_i and a stable-ised F shared by all inputs;
         # the output-error iterations then separate the F_i.
         na = int(nf.max())
-        arx = ARX(na=na, nb=tuple(nb.tolist()), nk=tuple(nk.tolist()), ridge=1e-8).fit(u, y)
+        try:
+            arx = ARX(na=na, nb=tuple(nb.tolist()), nk=tuple(nk.tolist()), ridge=1e-8).fit(u, y)
+        except ValueError as err:
+            raise ValueError(f"cannot fit the output-error model: its initial estimate, an ARX model with na = "
+                             f"max(nf) = {na} and the same nb, nk, failed: {err}") from err
         f_common = stabilize_poly(np.concatenate([[1.0], arx.a_[:, 0, 0]]), 0.95)
         theta = []
         for i in range(u.shape[1]):
@@ -158,7 +168,7 @@ class OutputError(LinearStateSpaceModel):
 
     def fit(self, u: Any, y: Any) -> OutputError:
         """Minimise the simulation error for each output separately; returns ``self``."""
-        nu_guess = np.atleast_2d(np.asarray(u, dtype=float).T).T.shape[1]
+        nu_guess, _ = data_columns(u, y, "output-error model")
         nb = _per_input(self.nb, nu_guess, "nb")
         nf = _per_input(self.nf, nu_guess, "nf")
         nk = _per_input(self.nk, nu_guess, "nk")

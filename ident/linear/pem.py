@@ -29,6 +29,7 @@ from scipy.optimize import least_squares
 from ident.io import register_model
 from ident.linear._statespace import (
     LinearStateSpaceModel,
+    data_columns,
     spectral_radius,
     ss_sensitivities,
     stabilize,
@@ -115,8 +116,7 @@ class StateSpacePEM(LinearStateSpaceModel):
             raise ValueError(f"order must be a positive integer, got {self.order}")
         if self.focus not in ("simulation", "prediction"):
             raise ValueError(f"focus must be 'simulation' or 'prediction', got {self.focus!r}")
-        u_a = np.atleast_2d(np.asarray(u, dtype=float).T).T
-        nu = u_a.shape[1]
+        nu, _ = data_columns(u, y, f"state-space model of order {n}")
         n_par = n * n + n * nu + n + n * self.feedthrough * nu + (n if self.focus == "prediction" else 0) + n
         u, y = validate_fit_data(u, y, n_par, 0, f"state-space model of order {n}")
         ny = y.shape[1]
@@ -125,6 +125,9 @@ class StateSpacePEM(LinearStateSpaceModel):
             A, B, C, D = (np.array(m, dtype=float) for m in self.init.state_space())
             if A.shape[0] != n:
                 raise ValueError(f"init model has order {A.shape[0]}, expected {n}")
+            if B.shape[1] != nu or C.shape[0] != ny:
+                raise ValueError(f"init model has {B.shape[1]} inputs and {C.shape[0]} outputs, but the data have "
+                                 f"u with {nu} and y with {ny} columns")
             K = np.array(getattr(self.init, "K_", np.zeros((n, ny))), dtype=float) if pred else np.zeros((n, ny))
         else:
             start = N4SID(order=n, horizon=self.horizon, feedthrough=self.feedthrough, estimate_k=pred).fit(u, y)

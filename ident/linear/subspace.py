@@ -24,6 +24,7 @@ from scipy.linalg import solve_discrete_are
 from ident.io import register_model
 from ident.linear._statespace import (
     LinearStateSpaceModel,
+    data_columns,
     spectral_radius,
     ss_sensitivities,
     stabilize,
@@ -131,9 +132,7 @@ class N4SID(LinearStateSpaceModel):
         if self.weighting not in ("moesp", "n4sid", "cva"):
             raise ValueError(f"weighting must be 'moesp', 'n4sid' or 'cva', got {self.weighting!r}")
         i = int(self.horizon) if self.horizon is not None else max(2 * n, 10)
-        u_a = np.atleast_2d(np.asarray(u, dtype=float).T).T
-        y_a = np.atleast_2d(np.asarray(y, dtype=float).T).T
-        nu, ny = u_a.shape[1], y_a.shape[1]
+        nu, ny = data_columns(u, y, f"subspace model (horizon {i})")
         if i * ny < n + 1:
             raise ValueError(f"horizon {i} too short for order {n} with {ny} output(s): need horizon * ny > order")
         n_rows = 2 * i * (nu + ny)

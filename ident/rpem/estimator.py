@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ident.base import as_2d, check_is_fitted, check_same_length
+from ident.base import as_2d, check_is_fitted, check_not_constant, check_positive_int, check_same_length
 from ident.io import load_model, register_model, save_model
 from ident.metrics import fit_percent
 from ident.rpem import kernel
@@ -66,7 +66,8 @@ class RecursivePEM:
     forgetting_initial, forgetting_rate, forgetting_final : float
         lambda(0), the rate and the limit of the forgetting factor.
     output_limits : (float, float) or sequence of them, optional
-        Output saturation (lower, upper) per output; the gradient is zero where it is active.
+        Output saturation (lower, upper) per output, lower < upper (either may be infinite); the gradient is zero
+        where it is active.
     state_bound, sensitivity_bound : float
         Saturations of the state and of dx/dtheta.
     init : {"given", "kalman"}
@@ -74,11 +75,11 @@ class RecursivePEM:
     kalman_options : dict, optional
         ``p0``, ``q_state``, ``q_theta``, ``r``, ``n_passes`` for the EKF (defaults: Paper III's 10, 50, 0, 3, 1).
     n_passes : int
-        Largest number of passes of ``fit`` over the data; passes stop once the simulation fit stops improving
-        by more than ``pass_tol`` percent, and the best pass is kept. Each pass restarts the state, R, Lambda and
-        the gain from their initial values and theta from the previous pass.
+        Largest number of passes of ``fit`` over the data (a positive integer); passes stop once the simulation fit
+        stops improving by more than ``pass_tol`` percent, and the best pass is kept. Each pass restarts the state,
+        R, Lambda and the gain from their initial values and theta from the previous pass.
     pass_tol : float
-        Required improvement of the FIT (percent) to continue passing.
+        Required improvement of the FIT (percent, >= 0) to continue passing.
     """
 
     def __init__(
@@ -161,6 +162,10 @@ class RecursivePEM:
         return float(self.alpha) * float(self.sampling_period)
 
     def _validate_params(self) -> None:
+        check_positive_int("n_states", self.n_states, what="number of states per output")
+        if not (self.state_bound > 0 and self.sensitivity_bound > 0):
+            raise ValueError(f"state_bound and sensitivity_bound must be positive, got {self.state_bound} and "
+                             f"{self.sensitivity_bound}")
         if not (self.sampling_period > 0 and self.alpha > 0):
             raise ValueError("sampling_period and alpha must be positive")
         if not 0 <= self.stability_margin < 1:
@@ -189,11 +194,19 @@ class RecursivePEM:
         lo = np.full(n_outputs, -np.inf)
         hi = np.full(n_outputs, np.inf)
         if self.output_limits is not None:
-            lim = np.asarray(self.output_limits, dtype=float).reshape(-1, 2)
+            lim = np.asarray(self.output_limits, dtype=float)
+            if lim.size % 2 or lim.size == 0 or (lim.ndim > 1 and lim.shape[-1] != 2):
+                raise ValueError(f"output_limits must be one (lower, upper) pair or one pair per output, got "
+                                 f"{self.output_limits!r}")
+            lim = lim.reshape(-1, 2)
             if len(lim) == 1:
                 lim = np.repeat(lim, n_outputs, axis=0)
             if len(lim) != n_outputs:
                 raise ValueError(f"output_limits has {len(lim)} pairs for {n_outputs} outputs")
+            bad = np.flatnonzero(np.isnan(lim).any(axis=1) | ~(lim[:, 0] < lim[:, 1]))
+            if bad.size:
+                raise ValueError(f"output_limits must be (lower, upper) pairs with lower < upper and no NaN, got "
+                                 f"{lim[bad[0]].tolist()} for output {int(bad[0])}")
             lo, hi = lim[:, 0].copy(), lim[:, 1].copy()
         self.y_lo_, self.y_hi_ = lo, hi
 
@@ -267,6 +280,11 @@ class RecursivePEM:
     def fit(self, u: Any, y: Any) -> RecursivePEM:
         """Estimate theta by (repeated) recursive passes over a dataset.
 
+        Raises ``ValueError`` naming the argument for NaN/inf, mismatched lengths, an output column constant over
+        all samples (``"y is constant ..."``: it carries no information about the dynamics; an output constant over
+        part of the record is fine), ``n_passes`` < 1 or bad ``output_limits``. :meth:`partial_fit` and
+        :meth:`update` process samples online and do not refuse a constant stretch.
+
         Parameters
         ----------
         u : array_like, shape (n_samples, n_inputs)
@@ -281,6 +299,10 @@ class RecursivePEM:
             state of the recursion after the last pass (``P_``, ``Lambda_``, ``x_``, ``sensitivity_``).
         """
         u2, y2 = self._fresh_validate(u, y)
+        n_passes = check_positive_int("n_passes", self.n_passes, what="number of passes over the data")
+        if not (np.isfinite(self.pass_tol) and self.pass_tol >= 0):
+            raise ValueError(f"pass_tol must be a finite non-negative FIT improvement in percent, got {self.pass_tol}")
+        check_not_constant("y", y2, "RPEM model", "output")
         self._setup(u2.shape[1], y2.shape[1])
         theta = self._initial_theta()
         if self.init == "kalman":
@@ -289,11 +311,11 @@ class RecursivePEM:
         self.theta_init_ = theta.copy()
         self.pass_fits_: list[float] = []
         best_fit, best_theta = -np.inf, theta
-        for _ in range(max(1, int(self.n_passes))):
+        for _ in range(n_passes):
             self._reset_recursion(theta)
             self._run(u2, y2)
             theta = self.theta_.copy()
-            if int(self.n_passes) <= 1:
+            if n_passes == 1:
                 best_theta = theta
                 break
             fit = self._sim_fit(u2, y2, theta)
@@ -386,12 +408,13 @@ class RecursivePEM:
 
         The state at t - k is the estimate of a state-only extended Kalman filter with theta fixed (process and
         measurement noise from ``kalman_options``); the model is then run k steps on the known inputs. The first
-        k samples hold the free-run simulation from ``y(0)``.
+        k samples hold the free-run simulation from ``y(0)``. ``k`` must be a positive integer (as for the linear
+        and Hammerstein-Wiener models); ``y`` must have as many samples as ``u``.
         """
         check_is_fitted(self, "theta_")
-        if int(k) < 0:
-            raise ValueError(f"k must be >= 0, got {k}")
         u2, y2 = self._validate(u, y)
+        if int(k) != k or k < 1:
+            raise ValueError(f"k must be a positive integer number of steps, got {k}")
         s = self.structure_
         opts = kalman_options(self.kalman_options)
         WS, WH, _, _ = self._rows(u2, carry=False)

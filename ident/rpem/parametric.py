@@ -93,6 +93,8 @@ class ParametricRPEM:
         self.state_ = np.asarray(x0, dtype=float).ravel().copy()
         if self.state_.size != nx:
             raise ValueError(f"x0 must have {nx} elements, got {self.state_.size}")
+        if not np.all(np.isfinite(self.state_)):
+            raise ValueError("x0 contains NaN or inf")
         nf, ny = free.size, out.size
         self.sensitivity_ = np.zeros((nx, nf))
         self.R_ = np.eye(nf) * self.R0 if np.isscalar(self.R0) else np.asarray(self.R0, dtype=float).copy()

@@ -79,3 +79,21 @@ def test_bad_data():
         IODataset(u=u, y=u, dt=1.0, input_names=["a"], output_names=["a"])
     with pytest.raises(ValueError, match="file type"):
         IODataset(u=u, y=u, dt=1.0).save("x.txt")
+
+
+def test_bad_time_arguments_are_named():
+    u = np.ones((10, 1))
+    with pytest.raises(ValueError, match="^dt must be a positive sample time.*'a'"):
+        IODataset(u=u, y=u, dt="a")
+    with pytest.raises(ValueError, match="^dt must be"):
+        IODataset(u=u, y=u, dt=np.inf)
+    with pytest.raises(ValueError, match="^t0 must be a finite time"):
+        IODataset(u=u, y=u, dt=1.0, t0=np.nan)
+    with pytest.raises(ValueError, match="^t0 must be a finite time"):
+        IODataset(u=u, y=u, dt=1.0, t0="later")
+    with pytest.raises(ValueError, match="^u has 0 samples"):
+        IODataset(u=np.zeros((0, 1)), y=np.zeros((0, 1)), dt=1.0)
+    with pytest.raises(ValueError, match="^y must be a 1-D or 2-D"):
+        IODataset(u=u, y=np.ones((10, 1, 1)), dt=1.0)
+    # a data set may hold constant signals (a step test at fixed flow); estimators decide whether they can use them
+    assert IODataset(u=u, y=np.zeros(10), dt=1.0).n_samples == 10

@@ -340,3 +340,51 @@ def test_initial_state_through_the_saturation(fitted) -> None:
     y_hat = m.predict(u, x0=x_hat)
     np.testing.assert_allclose(y_hat, y, atol=1e-6)
     assert simulate_ss(m.A_, m.B_, m.C_, m.D_, v, x_hat)[0].shape == (len(u), 1)
+
+
+@pytest.mark.parametrize("value", [0.0, 2.5])
+def test_constant_output_is_refused_naming_y(value: float) -> None:
+    u = np.column_stack([_inputs(200, 11), _inputs(200, 12)])
+    with pytest.raises(ValueError, match=r"^y is constant in column\(s\) \[0\].*Hammerstein-Wiener model"):
+        HammersteinWiener(max_nfev=5).fit(u, np.full(200, value))
+    with pytest.raises(ValueError, match="^y has no columns"):
+        HammersteinWiener(max_nfev=5).fit(u, np.zeros((200, 0)))
+
+
+def test_output_zero_most_of_the_time_is_fitted() -> None:
+    # an NH3-slip-like output, zero over most of the record, is informative where it moves
+    u = np.column_stack([_inputs(300, 11), _inputs(300, 12)])
+    w = lfilter([0.0, 0.4], [1.0, -0.6], u[:, 0]) + lfilter([0.0, 0.2], [1.0, -0.5], u[:, 1])
+    slip = np.maximum(w - np.quantile(w, 0.8), 0.0)
+    m = wiener(Saturation(lower=0.0), max_nfev=20).fit(u, slip)
+    assert np.all(np.isfinite(m.predict(u)))
+
+
+def test_failing_linear_start_names_the_hammerstein_wiener_model() -> None:
+    # y is not constant over the record, but it is over the weighted part the linear start is fitted on
+    u = np.column_stack([_inputs(300, 11), _inputs(300, 12)])
+    y = 0.5 * u[:, 0]
+    y[:200] = 0.0
+    w = np.ones(300)
+    w[200:] = 0.0
+    with pytest.raises(ValueError, match=r"^cannot fit the Hammerstein-Wiener model: its linear start.*samples "
+                                         r"\(0 to 199\).*y is constant"):
+        HammersteinWiener(max_nfev=5).fit(u, y, sample_weight=w)
+
+
+def test_predict_k_step_checks_lengths_k_and_x0() -> None:
+    u = np.column_stack([_inputs(200, 11), _inputs(200, 12)])
+    y = lfilter([0.0, 0.5], [1.0, -0.7], u[:, 0])
+    m = HammersteinWiener(max_nfev=5).fit(u, y)
+    with pytest.raises(ValueError, match=r"mismatched lengths \(u: 200, y: 10\)"):
+        m.predict_k_step(u, y[:10], 1)
+    with pytest.raises(ValueError, match="^y must have 1 columns"):
+        m.predict_k_step(u, np.column_stack([y, y]), 1)
+    for k in (0, 1.5, -2):
+        with pytest.raises(ValueError, match="^k must be a positive integer"):
+            m.predict_k_step(u, y, k)
+    np.testing.assert_array_equal(m.predict_k_step(u, y, 2), m.predict(u, y0=y))
+    with pytest.raises(ValueError, match="^x0 must have"):
+        m.predict(u, x0=np.zeros(m.n_states_ + 2))
+    with pytest.raises(ValueError, match="^x0 contains NaN"):
+        m.predict(u, x0=np.full(m.n_states_, np.inf))

@@ -206,3 +206,118 @@ def test_casadi_export_equals_numpy_predict(make):
         x, yt = f(x, u[t])
         ys.append(float(yt))
     np.testing.assert_allclose(np.array(ys), m.predict(u, y0=y)[:, 0], atol=1e-9)
+
+
+# ------------------------------------------------------------------------------- constant outputs, shapes, x0
+@pytest.mark.parametrize("make", ALL, ids=IDS)
+@pytest.mark.parametrize("value", [0.0, 1.0])
+def test_constant_output_is_refused_naming_y(make, value):
+    u = inputs(300)
+    with pytest.raises(ValueError, match=r"^y is constant in column\(s\) \[0\]"):
+        make().fit(u, np.full(300, value))
+
+
+@pytest.mark.parametrize("make", [lambda: ARX(1, 2, 1), lambda: N4SID(2)], ids=["ARX", "N4SID"])
+def test_constant_output_column_of_a_mimo_fit_is_named(make):
+    u = inputs(300)
+    y = np.column_stack([TRUE_SS.predict(u)[:, 0], np.zeros(300)])
+    with pytest.raises(ValueError, match=r"y is constant in column\(s\) \[1\]"):
+        make().fit(u, y)
+
+
+@pytest.mark.parametrize("make", ALL, ids=IDS)
+def test_output_constant_over_part_of_the_record_is_fitted(make):
+    # like an NH3 slip that is zero most of the time: informative where it moves, so not refused
+    u = inputs(300)
+    y = TRUE_SS.predict(u)
+    slip = np.maximum(y - np.quantile(y, 0.8), 0.0)
+    assert np.mean(slip == 0.0) >= 0.75
+    m = make().fit(u, slip)
+    assert np.all(np.isfinite(m.predict(u)))
+
+
+@pytest.mark.parametrize("make", ALL, ids=IDS)
+def test_non_finite_variance_and_missing_columns_are_refused(make):
+    u = inputs(300)
+    y = TRUE_SS.predict(u)
+    with pytest.raises(ValueError, match="^y has a non-finite variance"):
+        make().fit(u, y * 1e200)
+    with pytest.raises(ValueError, match="^u has no columns"):
+        make().fit(np.zeros((300, 0)), y)
+    with pytest.raises(ValueError, match="^y has no columns"):
+        make().fit(u, np.zeros((300, 0)))
+    with pytest.raises(ValueError, match="^u has 0 samples"):
+        make().fit(np.zeros((0, 2)), np.zeros(0))
+
+
+def test_constant_input_message_names_u():
+    u = inputs(300)
+    y = TRUE_SS.predict(u)
+    u[:, 0] = 3.0
+    with pytest.raises(ValueError, match=r"^u is constant in column\(s\) \[0\]"):
+        ARX(2, 2, 1).fit(u, y)
+
+
+def test_arx_rank_deficiency_names_the_cause():
+    u = inputs(300)
+    y = TRUE_SS.predict(u)[:, 0]
+    # inputs: a sinusoid satisfies a second-order recursion, so three lags of it are linearly dependent
+    sine = np.column_stack([np.sin(0.3 * np.arange(300)), u[:, 0]])
+    with pytest.raises(ValueError, match="cannot fit the ARX model.*inputs u are not persistently exciting"):
+        ARX(1, 3, 1).fit(sine, y)
+    # the output: noise-free first-order data fitted with three past outputs
+    y1 = np.zeros(300)
+    for t in range(2, 300):
+        y1[t] = 0.5 * y1[t - 1] + u[t - 1, 0] + 0.3 * u[t - 1, 1]
+    with pytest.raises(ValueError, match="cannot fit the ARX model.*past outputs are linearly dependent") as info:
+        ARX(3, 2, 1).fit(u, y1)
+    assert "inputs u are not" not in str(info.value)
+    # the weights
+    w = np.zeros(300)
+    w[:5] = 1.0
+    with pytest.raises(ValueError, match="sample weights leave 3 weighted samples"):
+        ARX(2, 2, 1).fit(u, y, sample_weight=w)
+
+
+def test_output_error_names_itself_when_its_arx_start_fails():
+    u = inputs(300)
+    y = TRUE_SS.predict(u)
+    pulse = u.copy()
+    pulse[:, 1] = 0.0
+    pulse[0, 1] = 1.0   # not constant, but never seen by the regression after the first lags
+    with pytest.raises(ValueError, match="^cannot fit the output-error model: its initial estimate, an ARX model"):
+        OutputError(2, 2, 1).fit(pulse, y)
+
+
+def test_pem_init_model_of_other_size_is_refused():
+    u = inputs(300)
+    y = TRUE_SS.predict(u)
+    other = N4SID(2).fit(u[:, :1], y)
+    with pytest.raises(ValueError, match="init model has 1 inputs"):
+        StateSpacePEM(2, init=other).fit(u, y)
+
+
+@pytest.mark.parametrize("make", ALL, ids=IDS)
+def test_predict_checks_x0_and_k(make):
+    u = inputs(300)
+    y = TRUE_SS.predict(u)
+    m = make().fit(u, y)
+    with pytest.raises(ValueError, match="^x0 must have"):
+        m.predict(u, x0=np.zeros(m.n_states_ + 1))
+    with pytest.raises(ValueError, match="^x0 contains NaN"):
+        m.predict(u, x0=np.full(m.n_states_, np.nan))
+    with pytest.raises(ValueError, match="^y0 contains NaN"):
+        m.predict(u, y0=np.full((5, 1), np.nan))
+    for k in (0, 1.5, -1):
+        with pytest.raises(ValueError, match="^k must be a positive integer"):
+            m.predict_k_step(u, y, k)
+    with pytest.raises(ValueError, match="mismatched lengths"):
+        m.predict_k_step(u, y[:10], 1)
+
+
+def test_spectral_radius_documented():
+    from ident.linear._statespace import spectral_radius
+
+    assert spectral_radius.__doc__
+    assert spectral_radius(np.zeros((0, 0))) == 0.0
+    assert spectral_radius(np.array([[0.0, 1.0], [-0.5, 0.0]])) == pytest.approx(np.sqrt(0.5))

@@ -84,3 +84,21 @@ def test_bad_arguments():
         MultipleModel([1], [[0.0, 1.0]]).fit(np.column_stack([u[:, 0], np.ones(200)]), y)
     with pytest.raises(NotFittedError):
         MultipleModel([1], [[0.0, 1.0]]).predict(u)
+
+
+def test_constant_output_and_bad_initial_conditions():
+    u, y = scheduled_system(300)
+    with pytest.raises(ValueError, match=r"^y is constant in column\(s\) \[0\].*multiple model"):
+        MultipleModel([1], [[0.0, 1.0]]).fit(u, np.zeros(300))
+    with pytest.raises(ValueError, match="^u has no columns"):
+        MultipleModel([1], [[0.0, 1.0]]).fit(np.zeros((300, 0)), y)
+    m = MultipleModel([1], [quantile_edges(u[:, 1], 2)]).fit(u, y)
+    with pytest.raises(ValueError, match="^x0 must have"):
+        m.predict(u, x0=[1.0])
+    with pytest.raises(ValueError, match="^y0 contains NaN"):
+        m.predict(u, y0=np.nan)
+    for k in (0, 1.5):
+        with pytest.raises(ValueError, match="^k must be a positive integer"):
+            m.predict_k_step(u, y, k)
+    with pytest.raises(ValueError, match="mismatched lengths"):
+        m.predict_k_step(u, y[:10], 1)

@@ -77,3 +77,20 @@ def test_dataset_helpers():
     split = normalize_split(*ds.split(0.75))
     np.testing.assert_allclose(split.estimation.u.mean(axis=0), 0.0, atol=1e-12)
     np.testing.assert_allclose(split.input_normalizer.inverse_transform(split.validation.u), ds.u[75:])
+
+
+def test_normalizer_argument_errors():
+    x = np.column_stack([np.arange(10.0), np.full(10, 533.97)])
+    # fewer names than columns: the constant column is still named, by position
+    with pytest.raises(ValueError, match="constant signal: column 1"):
+        Normalizer(names=["nox"]).fit(x)
+    with pytest.raises(ValueError, match="^ddof must be"):
+        Normalizer(ddof=10).fit(np.arange(20.0).reshape(10, 2))
+    with pytest.raises(ValueError, match="^ddof must be"):
+        Normalizer(ddof=0.5).fit(np.arange(20.0).reshape(10, 2))
+    with pytest.raises(ValueError, match="positive sd"):
+        Normalizer.from_stats([0.0], [np.nan])
+    with pytest.raises(ValueError, match="positive sd"):
+        Normalizer.from_stats([0.0, 1.0], [1.0])
+    with pytest.raises(ValueError, match="^x has 1 samples"):
+        Normalizer().fit(np.ones((1, 2)))

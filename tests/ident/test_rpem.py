@@ -226,3 +226,65 @@ def test_backward_elimination_drops_useless_term():
     res = backward_elimination(template, ["u1", "u2", "x1", "x2"], u[:1000], y[:1000], u[1000:], y[1000:],
                                theta0={"x1": -0.5, "x2": -0.5})
     assert "u2" not in res.terms and {"u1", "x1", "x2"} <= set(res.terms)
+
+
+@pytest.mark.parametrize("value", [0.0, 1.0])
+def test_constant_output_is_refused_naming_y(value):
+    u, _ = _paper2_data(0, 200, continuous=False)
+    with pytest.raises(ValueError, match=r"^y is constant in column\(s\) \[0\].*RPEM model"):
+        _paper2_est().fit(u, np.full(200, value))
+    with pytest.raises(ValueError, match=r"y is constant in column\(s\) \[1\]"):
+        _paper2_est().fit(u, np.column_stack([_paper2_data(0, 200, continuous=False)[1], np.zeros(200)]))
+
+
+def test_output_constant_over_part_of_the_record_is_fitted_and_online_updates_accept_it():
+    u, y = _paper2_data(0, 400, continuous=False)
+    y_part = np.where(np.arange(400) < 300, 0.0, y)
+    est = _paper2_est().fit(u, y_part)
+    assert np.all(np.isfinite(est.theta_))
+    online = _paper2_est()
+    online.partial_fit(u[:20], np.zeros(20))   # online: a constant stretch is just data
+    online.update(u[20], 0.0)
+    assert online.n_samples_seen_ == 21
+
+
+@pytest.mark.parametrize("n_passes", [0, -1, 1.5])
+def test_n_passes_must_be_a_positive_integer(n_passes):
+    u, y = _paper2_data(0, 100, continuous=False)
+    with pytest.raises(ValueError, match=f"^n_passes must be a positive integer.*got {n_passes}"):
+        _paper2_est(n_passes=n_passes).fit(u, y)
+    assert not hasattr(_paper2_est(n_passes=n_passes), "theta_")
+
+
+def test_other_constructor_arguments_are_checked():
+    u, y = _paper2_data(0, 100, continuous=False)
+    with pytest.raises(ValueError, match="^pass_tol"):
+        _paper2_est(n_passes=2, pass_tol=-1.0).fit(u, y)
+    with pytest.raises(ValueError, match="^n_states must be a positive integer"):
+        _paper2_est(n_states=1.5, terms=None).fit(u, y)
+    with pytest.raises(ValueError, match="^state_bound and sensitivity_bound"):
+        _paper2_est(state_bound=-1.0).fit(u, y)
+
+
+@pytest.mark.parametrize("limits", [(1.0, 0.0), (0.5, 0.5), (np.nan, 1.0), (0.0, 1.0, 2.0), [(0.0, 1.0)] * 2])
+def test_output_limits_are_checked(limits):
+    u, y = _paper2_data(0, 100, continuous=False)
+    with pytest.raises(ValueError, match="^output_limits"):
+        _paper2_est(output_limits=limits).fit(u, y)
+
+
+def test_one_sided_output_limits_are_accepted():
+    u, y = _paper2_data(0, 100, continuous=False)
+    est = _paper2_est(output_limits=(-0.5, np.inf)).fit(u, y)
+    assert est.predict(u, y0=y[:1]).min() >= -0.5
+
+
+def test_predict_k_step_checks_k_like_the_linear_models():
+    u, y = _paper2_data(0, 100, continuous=False)
+    est = _paper2_est().fit(u, y)
+    for k in (0, 1.5, -1):
+        with pytest.raises(ValueError, match=f"^k must be a positive integer number of steps, got {k}"):
+            est.predict_k_step(u, y, k)
+    with pytest.raises(ValueError, match="mismatched lengths"):
+        est.predict_k_step(u, y[:10], 1)
+    np.testing.assert_array_equal(est.predict_k_step(u, y, 2.0), est.predict_k_step(u, y, 2))

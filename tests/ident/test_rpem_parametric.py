@@ -58,3 +58,11 @@ def test_projection_keeps_estimate_in_the_box_and_nan_raises() -> None:
         est.update([np.nan], [0.0])
     with pytest.raises(ValueError, match="free"):
         ParametricRPEM(_first_order(), p0=[0.5, 0.2, 2.0], free=[5]).start([0.0])
+
+
+def test_start_state_must_be_finite() -> None:
+    est = ParametricRPEM(_first_order(), p0=[0.5, 0.2, 2.0])
+    with pytest.raises(ValueError, match="^x0 contains NaN"):
+        est.start([np.nan])
+    with pytest.raises(ValueError, match="^x0 must have 1 elements"):
+        est.start([0.0, 1.0])

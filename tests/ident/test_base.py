@@ -1,0 +1,40 @@
+"""ident.base: the shared validators every estimator uses."""
+import numpy as np
+import pytest
+
+from ident.base import as_2d, as_vector, check_not_constant, check_positive_int
+
+
+def test_check_not_constant_refuses_only_a_column_constant_over_all_samples():
+    y = np.column_stack([np.arange(5.0), np.zeros(5), np.full(5, 2.0)])
+    with pytest.raises(ValueError, match=r"^y is constant in column\(s\) \[1, 2\] \(value 0, 2 at all 5 samples\)"
+                                         r".*the ARX model cannot be identified"):
+        check_not_constant("y", y, "ARX model")
+    # zero most of the time (an NH3 slip) is not constant
+    slip = np.zeros((100, 1))
+    slip[60] = 0.3
+    check_not_constant("y", slip)
+    # the signal kind and the argument name are the caller's
+    with pytest.raises(ValueError, match="^v is constant.*a constant input carries"):
+        check_not_constant("v", np.ones((4, 1)), signal="input")
+
+
+def test_check_not_constant_refuses_overflowing_variance_and_no_columns():
+    with pytest.raises(ValueError, match=r"^y has a non-finite variance in column\(s\) \[0\]"):
+        check_not_constant("y", as_2d("y", np.array([1e300, -1e300, 1e300])))
+    with pytest.raises(ValueError, match="^y has no columns"):
+        check_not_constant("y", np.zeros((5, 0)))
+
+
+def test_as_vector_and_check_positive_int():
+    np.testing.assert_array_equal(as_vector("x0", [[1.0], [2.0]], 2), [1.0, 2.0])
+    with pytest.raises(ValueError, match=r"^x0 must have 3 values, got shape \(2,\)"):
+        as_vector("x0", [1.0, 2.0], 3)
+    with pytest.raises(ValueError, match="^x0 contains NaN"):
+        as_vector("x0", [1.0, np.nan], 2)
+    assert check_positive_int("n", 3.0) == 3
+    for bad in (0, -1, 1.5, "two", None):
+        with pytest.raises(ValueError, match="^n must be a positive integer"):
+            check_positive_int("n", bad)
+    with pytest.raises(ValueError, match="^k must be an integer >= 0"):
+        check_positive_int("k", -1, minimum=0)
