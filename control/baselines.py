@@ -1,7 +1,10 @@
 """Industrial dosing baselines: an open-loop look-up table and look-up-table feedforward with PI feedback.
 
 Both see only the default observation ``[upstream NOx ppm, inlet T K, exhaust flow mol/s, tailpipe NOx sensor ppm,
-previous action]`` and satisfy :class:`control.protocol.PolicyPredictor`.
+previous action]`` and satisfy :class:`control.protocol.PolicyPredictor`. Their ``predict`` checks the observation
+first (:func:`control.protocol.check_observation`: NaN/inf or a wrong size raise ``ValueError``, nothing changed);
+the look-up table is stateless and takes a batch ``(B, n)`` (action ``(B, 1)``), the PI keeps per-episode state and
+takes one plant's ``(n,)`` (action ``(1,)``) or ``(1, n)`` (action ``(1, 1)``).
 
 Look-up-table dosing (:class:`LookupTableDosing`)
     The usual series calibration: a target NH3-to-NOx ratio (ANR) read from a map of SCR inlet temperature and
@@ -43,7 +46,13 @@ from typing import Any
 
 import numpy as np
 
-from control.protocol import DEFAULT_MAX_RATE_G_S, is_episode_start, rate_to_action
+from control.protocol import (
+    DEFAULT_MAX_RATE_G_S,
+    check_observation,
+    is_episode_start,
+    observation_size,
+    rate_to_action,
+)
 from scr_env.constants import NH3_MOL_PER_G_ADBLUE
 
 #: breakpoints of the ANR map in SCR inlet temperature [C]
@@ -69,6 +78,10 @@ class LookupTableDosing:
     flow_derate : (flow [mol/s], multiplier) breakpoints.
     anr_scale : multiplies the whole map (the calibrated window level).
     max_rate_g_s : injector limit [g/s] (the environment's ``DosingParams.max_rate_g_s``).
+
+    Stateless: ``predict`` takes an observation ``(n,)`` (action ``(1,)``) or a batch ``(B, n)`` (action ``(B, 1)``),
+    like a stable-baselines3 policy. ``n`` is at least the 5 entries of the default observation, exactly the
+    environment's observation size after :meth:`attach`.
     """
 
     def __init__(self, temperatures_c: tuple = DEFAULT_ANR_TEMPERATURES_C, anr: tuple = DEFAULT_ANR_BY_TEMPERATURE,
@@ -79,6 +92,11 @@ class LookupTableDosing:
         self.flow_derate = flow_derate
         self.anr_scale = anr_scale
         self.max_rate_g_s = max_rate_g_s
+        self.observation_size_: int | None = None
+
+    def attach(self, env: Any) -> None:
+        """Remember the environment's observation size (to check observations); nothing else is read."""
+        self.observation_size_ = observation_size(env)
 
     def target_anr(self, inlet_temperature_k: float, exhaust_flow_mol_s: float) -> float:
         """Target ANR [-] at an inlet temperature [K] and exhaust flow [mol/s]."""
@@ -93,7 +111,11 @@ class LookupTableDosing:
 
     def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        return rate_to_action(self.dose_g_s(np.asarray(observation)), self.max_rate_g_s), state
+        batch, single = check_observation(observation, self.observation_size_, max_batch=None,
+                                          owner=type(self).__name__)
+        if single:
+            return rate_to_action(self.dose_g_s(batch[0]), self.max_rate_g_s), state
+        return np.stack([rate_to_action(self.dose_g_s(row), self.max_rate_g_s) for row in batch]), state
 
 
 class FeedforwardPI:
@@ -109,6 +131,10 @@ class FeedforwardPI:
     check_window_s, slip_hold_s, slip_rate_per_s : slip guard (module docstring).
     max_rate_change_g_s2 : AdBlue rate limit [g/s per s].
     dt : control interval [s] (taken from the environment by :meth:`attach`).
+
+    One plant: ``predict`` takes ``(n,)`` (action ``(1,)``) or ``(1, n)`` (action ``(1, 1)``) and rejects larger
+    batches; ``n`` is at least 5, exactly the environment's observation size after :meth:`attach`. A rejected
+    observation (NaN, wrong shape) raises before the integrator, the filter or the rate limiter are touched.
     """
 
     def __init__(self, feedforward: LookupTableDosing | None = None, target_conversion: float = 0.97,
@@ -131,12 +157,15 @@ class FeedforwardPI:
         self.leak_per_s = leak_per_s
         self.max_rate_change_g_s2 = max_rate_change_g_s2
         self.dt = dt
+        self.observation_size_: int | None = None
         self._reset()
 
     def attach(self, env: Any) -> None:
-        """Take the control interval and the injector limit from the environment (no privileged data)."""
+        """Take the control interval, the injector limit and the observation size from the environment (no
+        privileged data)."""
         self.dt = float(env.dt)
         self._max_rate = float(env.max_rate_g_s)
+        self.observation_size_ = observation_size(env)
 
     def _reset(self) -> None:
         self._ff = self.feedforward or LookupTableDosing()
@@ -156,11 +185,12 @@ class FeedforwardPI:
 
     def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        batch, single = check_observation(observation, self.observation_size_, owner=type(self).__name__)
+        obs = batch[0]
         if is_episode_start(episode_start):
             max_rate = self._max_rate
             self._reset()
             self._max_rate = max_rate
-        obs = np.asarray(observation, dtype=np.float64)
         dt = self.dt
         nox_up = max(float(obs[0]), 0.0)
         t_in = float(obs[1])
@@ -199,5 +229,6 @@ class FeedforwardPI:
         rate = min(max(rate, self._last_rate - dmax), self._last_rate + dmax)
         rate = min(max(rate, 0.0), self._max_rate)
         self._last_rate = rate
-        return rate_to_action(rate, self._max_rate), state
+        action = rate_to_action(rate, self._max_rate)
+        return (action if single else action[None, :]), state
 

@@ -19,11 +19,19 @@ Model sources (:class:`PredictionModel`, in :mod:`control.models`): the first-pr
 state (the oracle) and any identified model's CasADi export with an EKF for its state. The NLP is an SX
 ``nlpsol`` (IPOPT by default), warm-started from the previous solution shifted by one interval.
 
-A failed solve (solver status not successful, an exception, a non-finite result) never raises mid-episode: the
-controller applies the last good plan while it lasts, then the fallback dose (the look-up table by default),
-counts the failure (``solver_failures``) and reports it in :meth:`NonlinearMPC.stats`, with the solve times. An
-iterate at the iteration limit that satisfies every constraint (model equations included, to 1e-6) is a valid but
-suboptimal plan: it is applied and counted as ``solver_suboptimal``, not as a failure.
+A failed solve (solver status not successful, a non-finite result, or one of the numerical exceptions of
+:data:`SOLVE_ERRORS`) never raises mid-episode: the controller applies the last good plan while it lasts, then the
+fallback dose (the look-up table by default), counts the failure (``solver_failures``) and reports it in
+:meth:`NonlinearMPC.stats`, with the solve times. An iterate at the iteration limit that satisfies every constraint
+(model equations included, to 1e-6) is a valid but suboptimal plan: it is applied and counted as
+``solver_suboptimal``, not as a failure.
+
+What is *not* a failed solve, and raises: a bad observation (checked before anything else by
+:func:`control.protocol.check_observation`: None, NaN/inf, wrong size, a batch of several plants -- nothing of the
+controller's state is touched), and any other exception of the solve (``ValueError``, ``TypeError``,
+``IndexError``, ``AttributeError``, ... from the model or its configuration). Those are errors of the caller or of
+the code, the same at every step; counting them as solver failures would make a broken controller look like a
+weak one that falls back to the look-up table.
 """
 from __future__ import annotations
 
@@ -36,11 +44,33 @@ import casadi as ca
 import numpy as np
 
 from control.baselines import LookupTableDosing
-from control.protocol import DEFAULT_MAX_RATE_G_S, action_to_rate, is_episode_start, rate_to_action
+from control.protocol import (
+    DEFAULT_MAX_RATE_G_S,
+    N_BASE_OBSERVATION,
+    action_to_rate,
+    check_observation,
+    is_episode_start,
+    observation_size,
+    rate_to_action,
+)
 from scr_env.constants import NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
 
 #: disturbance columns per stage, as ``UreaSCREnv.disturbance_preview``: flow mol/s, inlet T K, NOx ppm, NO2 frac
 N_DISTURBANCE = 4
+
+#: exceptions of a solve that count as a failed solve (fallback dose, ``solver_failures``) instead of raising:
+#:
+#: * ``RuntimeError``: what CasADi raises for any failure inside a ``Function`` call -- the NLP solver with
+#:   ``error_on_fail``, NaN/Inf in its functions with regularity checks, a QP solver giving up;
+#: * ``numpy.linalg.LinAlgError``: the state estimator's innovation covariance (EKF in ``model.prepare``)
+#:   numerically singular -- a degenerate estimate, not a wrong argument (it is a ``ValueError`` subclass: only it
+#:   is caught, not ``ValueError`` in general);
+#: * ``ArithmeticError`` (``FloatingPointError`` -- numpy under ``errstate(all="raise")``, or the EKF refusing an
+#:   update that would make its estimate non-finite --, ``OverflowError``, ``ZeroDivisionError`` from the numba or
+#:   Python model preparation at an extreme state).
+#:
+#: Everything else propagates (module docstring).
+SOLVE_ERRORS: tuple[type[BaseException], ...] = (RuntimeError, np.linalg.LinAlgError, ArithmeticError)
 
 
 @dataclass(frozen=True)
@@ -137,23 +167,26 @@ class NonlinearMPC:
         self.warm_start_duals = (solver == "ipopt") if warm_start_duals is None else bool(warm_start_duals)
         self.dt = 0.5
         self.max_rate_g_s = DEFAULT_MAX_RATE_G_S
+        self.observation_size_: int | None = None
         self._env = None
         self._solver = None
         self._reset_episode()
 
     # ------------------------------------------------------------------------------------------- protocol hooks
     def attach(self, env: Any) -> None:
-        """Read dt and the injector limit; keep the env for the cycle preview if ``preview``; attach the model."""
+        """Read dt, the injector limit and the observation size; keep the env for the cycle preview if ``preview``;
+        attach the model."""
+        n_obs = observation_size(env)
+        if self.slip_guard is not None and self.slip_guard[0] >= n_obs:
+            raise ValueError(f"slip_guard reads observation index {self.slip_guard[0]}, but the environment's "
+                             f"observation has {n_obs} entries (an NH3 sensor needs nh3_sensor=True)")
         if float(env.dt) != self.dt or float(env.max_rate_g_s) != self.max_rate_g_s:
             self._solver = None
         self.dt = float(env.dt)
         self.max_rate_g_s = float(env.max_rate_g_s)
         self._env = env if self.preview else None
-        if self.slip_guard is not None and self.slip_guard[0] >= int(np.prod(env.observation_space.shape)):
-            raise ValueError(f"slip_guard reads observation index {self.slip_guard[0]}, but the environment's "
-                             f"observation has {int(np.prod(env.observation_space.shape))} entries (an NH3 sensor "
-                             "needs nh3_sensor=True)")
         self.model.attach(env)
+        self.observation_size_ = n_obs
 
     def stats(self) -> dict[str, float]:
         """Solver statistics of the episode: failures, solves, solve time median / p95 / max [ms], iterations, and
@@ -253,7 +286,13 @@ class NonlinearMPC:
 
     def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        obs = np.asarray(observation, dtype=np.float64)
+        """The policy protocol (:mod:`control.protocol`): one plant, ``observation`` of shape ``(n,)`` (action
+        ``(1,)``) or ``(1, n)`` (action ``(1, 1)``); ``n`` the environment's observation size after :meth:`attach`
+        (before it, at least the entries the controller reads). A bad observation raises before any state changes;
+        a failed solve falls back (module docstring)."""
+        batch, single = check_observation(observation, self.observation_size_, min_size=self._min_observation_size(),
+                                          owner=type(self).__name__)
+        obs = batch[0]
         if is_episode_start(episode_start):
             self._reset_episode()
             self.model.reset(obs)
@@ -263,7 +302,7 @@ class NonlinearMPC:
         rate = None
         try:
             rate = self._solve(obs)
-        except Exception:  # noqa: BLE001  (any solver or model error falls back, counted; never raised mid-episode)
+        except SOLVE_ERRORS:  # a numerical failure of the solve falls back, counted (see SOLVE_ERRORS)
             rate = None
         self._solve_ms.append((time.thread_time() - c0) * 1e3)
         self._solve_wall_ms.append((time.perf_counter() - t0) * 1e3)
@@ -283,7 +322,19 @@ class NonlinearMPC:
             rate = min(max(rate, self._u_prev - lim), self._u_prev + lim)
         rate = min(max(rate, 0.0), self.max_rate_g_s)
         self._u_prev = rate
-        return rate_to_action(rate, self.max_rate_g_s), state
+        action = rate_to_action(rate, self.max_rate_g_s)
+        return (action if single else action[None, :]), state
+
+    def _min_observation_size(self) -> int:
+        """Entries an observation needs before :meth:`attach` tells the exact size: the default observation, and
+        the entries the slip guard and the model's estimator read (``measured_obs``)."""
+        n = N_BASE_OBSERVATION
+        if self.slip_guard is not None:
+            n = max(n, self.slip_guard[0] + 1)
+        measured = getattr(self.model, "measured_obs", None)
+        if measured:
+            n = max(n, max(int(j) for j in measured) + 1)
+        return n
 
     def _solve(self, obs: np.ndarray) -> float | None:
         H, nx = self._H, self._nx

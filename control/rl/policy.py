@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from control.protocol import check_observation
 from control.rl.pipeline import EXPECTED_OBSERVATION, ObservationPipeline, PipelineConfig
 
 __all__ = ["POLICY_DIR", "RLPolicy", "available_policies", "load_policy", "save_policy", "versions"]
@@ -69,7 +70,10 @@ class RLPolicy:
 
     The pipeline state (history, moving averages) is kept inside the object, restarted whenever
     ``episode_start`` is True (or at the first call); ``state`` is passed through unchanged (None).
-    Observations of shape (5,) give an action of shape (1,); a batch (B, 5) gives (B, 1).
+    Observations of shape (5,) give an action of shape (1,); a batch (B, 5) gives (B, 1). An observation with NaN or
+    inf, or of another size than the policy's layout, raises ``ValueError``
+    (:func:`control.protocol.check_observation`) before the pipeline state is touched: one bad reading does not
+    poison the history and moving averages of the rest of the episode.
     """
 
     def __init__(self, model: Any, pipeline: PipelineConfig, obs_mean: np.ndarray, obs_var: np.ndarray,
@@ -109,13 +113,9 @@ class RLPolicy:
 
     def predict(self, observation: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        obs = np.asarray(observation, dtype=np.float64)
-        single = obs.ndim == 1
-        batch = obs.reshape(1, -1) if single else obs
-        n_obs = len(self.observation_names)
-        if batch.ndim != 2 or batch.shape[1] != n_obs:
-            raise ValueError(f"policy {self.name!r} expects observations of {n_obs} entries "
-                             f"{self.observation_names}, got shape {obs.shape}")
+        names = self.observation_names
+        batch, single = check_observation(observation, len(names), max_batch=None, owner=f"policy {self.name!r}",
+                                          names=names)
         b = batch.shape[0]
         if episode_start is None:
             starts = np.zeros(b, dtype=bool)

@@ -67,7 +67,7 @@ def test_slip_guard_doses_nothing_on_failed_solves_while_the_nh3_sensor_reads_sl
     lut = LookupTableDosing()
     mpc = _identified_mpc(fallback=lut, max_rate_change_g_s2=100.0, slip_guard=(5, 10.0))
     env = UreaSCREnv(cycle="whsc", nh3_sensor=True)
-    obs, _ = env.reset(seed=0)
+    env.reset(seed=0)
     mpc.attach(env)
     mpc.model.prepare = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken model"))  # every solve fails
     slipping = np.array([500.0, 550.0, 6.0, 30.0, 0.0, 25.0])
@@ -116,3 +116,184 @@ def test_oracle_collocation_equals_plant_step():
     assert np.max(np.abs(np.asarray(res))) < 1e-6
     y = np.asarray(y).ravel()
     assert np.allclose(np.asarray(out).ravel(), [y[0] + y[1], y[2]], rtol=1e-6, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------ observation checks
+OBS = np.array([500.0, 550.0, 6.0, 30.0, 0.0], dtype=np.float32)
+
+
+def _episode(rng_seed=0, n=60):
+    """A plausible observation sequence (hot catalyst, varying NOx, flow and sensor)."""
+    rng = np.random.default_rng(rng_seed)
+    obs = np.tile(OBS.astype(np.float64), (n, 1))
+    obs[:, 0] = 400.0 + 300.0 * rng.random(n)
+    obs[:, 1] = 540.0 + np.linspace(0.0, 60.0, n)
+    obs[:, 2] = 5.0 + 3.0 * rng.random(n)
+    obs[:, 3] = 5.0 + 80.0 * rng.random(n)
+    return obs.astype(np.float32)
+
+
+def _bad_observations(n_obs=5):
+    nan = np.array(OBS, dtype=np.float64)
+    nan[3] = np.nan
+    inf = np.array(OBS, dtype=np.float64)
+    inf[0] = np.inf
+    return [(nan, ValueError, "observation contains NaN"), (inf, ValueError, "observation contains NaN or inf"),
+            (OBS[:3], ValueError, "observation must have"), (None, TypeError, "observation")]
+
+
+def test_lookup_table_takes_batches_and_rejects_bad_observations():
+    lut = LookupTableDosing()
+    a, _ = lut.predict(OBS)
+    assert a.shape == (1,) and a.dtype == np.float32
+    obs = _episode(n=4)
+    batch, _ = lut.predict(obs)
+    assert batch.shape == (4, 1) and batch.dtype == np.float32
+    assert np.array_equal(batch[:, 0], [lut.predict(o)[0][0] for o in obs])
+    one, _ = lut.predict(OBS[None])
+    assert one.shape == (1, 1) and one[0, 0] == a[0]
+    for bad, err, match in _bad_observations():
+        with pytest.raises(err, match=match):
+            lut.predict(bad)
+    bad = obs.copy()
+    bad[2, 1] = np.nan
+    with pytest.raises(ValueError, match=r"observation contains NaN or inf at \(row, entry\) \[\(2, 1\)\]"):
+        lut.predict(bad)
+    # after attach the exact size of the environment's observation is required
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    lut.attach(UreaSCREnv(cycle="whsc", nh3_sensor=True))
+    with pytest.raises(ValueError, match="observation must have 6 entries"):
+        lut.predict(OBS)
+    assert lut.predict(np.r_[OBS, 2.0])[0][0] == a[0]
+
+
+def test_pi_rejects_bad_observations_and_batches_without_touching_its_state():
+    obs = _episode()
+    ref = FeedforwardPI()
+    expected = [ref.predict(o, episode_start=np.array([k == 0]))[0] for k, o in enumerate(obs)]
+    pi = FeedforwardPI()
+    got = []
+    for k, o in enumerate(obs):
+        if k in (5, 30):  # bad calls mid-episode (also flagged as an episode start: must not reset either)
+            for bad, err, match in _bad_observations() + [(np.stack([o, o]), ValueError, "single plant")]:
+                with pytest.raises(err, match=match):
+                    pi.predict(bad, episode_start=np.array([True]))
+        got.append(pi.predict(o, episode_start=np.array([k == 0]))[0])
+    assert all(np.array_equal(g, e) for g, e in zip(got, expected))
+    assert pi.stats() == ref.stats()
+    # one plant as a (1, n) batch: action (1, 1), the same number
+    a, _ = FeedforwardPI().predict(obs[0][None], episode_start=np.array([True]))
+    assert a.shape == (1, 1) and a[0, 0] == expected[0][0]
+
+
+def test_pi_after_attach_wants_the_environment_s_observation_size():
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    pi = FeedforwardPI()
+    pi.attach(UreaSCREnv(cycle="whsc"))
+    with pytest.raises(ValueError, match="observation must have 5 entries"):
+        pi.predict(np.r_[OBS, 1.0])
+
+
+def _mpc_counters(mpc):
+    s = mpc.stats()
+    return {k: s[k] for k in ("solver_failures", "solves", "solver_suboptimal", "slip_guarded_steps")}
+
+
+def test_mpc_rejects_bad_observations_before_solving_or_counting():
+    """predict(None), obs[:3], a batch of two, NaN: clear errors, not a 'solver failure' with a plausible dose;
+    the estimator, the warm start and the counters are untouched (the next doses equal an undisturbed run's)."""
+    obs = _episode(n=8)
+    ref = _identified_mpc()
+    expected = [ref.predict(o, episode_start=np.array([k == 0]))[0] for k, o in enumerate(obs)]
+    mpc = _identified_mpc()
+    for k, o in enumerate(obs):
+        if k == 3:
+            before = (_mpc_counters(mpc), mpc.model.ekf_.x_.copy(), mpc.model.ekf_.P_.copy(), mpc._u_prev)
+            for bad, err, match in _bad_observations() + [(np.stack([o, o]), ValueError, "single plant")]:
+                with pytest.raises(err, match=match):
+                    mpc.predict(bad)
+            after = (_mpc_counters(mpc), mpc.model.ekf_.x_, mpc.model.ekf_.P_, mpc._u_prev)
+            assert before[0] == after[0] and np.array_equal(before[1], after[1])
+            assert np.array_equal(before[2], after[2]) and before[3] == after[3]
+        a, _ = mpc.predict(o, episode_start=np.array([k == 0]))
+        assert np.array_equal(a, expected[k])
+    assert _mpc_counters(mpc) == _mpc_counters(ref)
+
+
+def test_mpc_one_plant_as_a_batch_of_one():
+    a, _ = _identified_mpc().predict(OBS[None], episode_start=np.array([True]))
+    b, _ = _identified_mpc().predict(OBS, episode_start=np.array([True]))
+    assert a.shape == (1, 1) and b.shape == (1,) and a[0, 0] == b[0]
+
+
+def test_mpc_observation_size_before_and_after_attach():
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    guarded = _identified_mpc(slip_guard=(5, 10.0))  # reads obs[5]: needs the NH3 sensor entry
+    with pytest.raises(ValueError, match="observation must have at least 6 entries"):
+        guarded.predict(OBS)
+    mpc = _identified_mpc()
+    mpc.attach(UreaSCREnv(cycle="whsc"))
+    with pytest.raises(ValueError, match="observation must have 5 entries"):
+        mpc.predict(np.r_[OBS, 1.0])
+
+
+@pytest.mark.parametrize("error, counted", [
+    (RuntimeError("casadi: solver error"), True),
+    (np.linalg.LinAlgError("singular innovation covariance"), True),
+    (FloatingPointError("overflow"), True),
+    (ZeroDivisionError("float division by zero"), True),
+    (ValueError("a bug, not a bad solve"), False),
+    (TypeError("a bug"), False),
+    (IndexError("a bug"), False),
+    (KeyError("a bug"), False),
+])
+def test_mpc_falls_back_on_numerical_failures_only(error, counted):
+    lut = LookupTableDosing()
+    mpc = _identified_mpc(fallback=lut, max_rate_change_g_s2=100.0)
+
+    def broken(*a, **k):
+        raise error
+
+    mpc.model.prepare = broken
+    if counted:
+        a, _ = mpc.predict(OBS, episode_start=np.array([True]))
+        assert action_to_rate(a[0]) == pytest.approx(lut.dose_g_s(OBS), rel=1e-6)
+        assert mpc.stats()["solver_failures"] == 1
+    else:
+        with pytest.raises(type(error), match="bug"):
+            mpc.predict(OBS, episode_start=np.array([True]))
+
+
+def test_identified_nmpc_survives_a_nan_reading_on_the_gym_env():
+    """The review's reproduction: one NaN tailpipe reading used to make the EKF state NaN, and the NMPC stopped
+    dosing for the rest of the episode without counting a failure. Now the reading is refused (ValueError naming
+    the observation), and the episode goes on exactly as if it had not been offered."""
+    import gymnasium as gym
+
+    import scr_env  # noqa: F401  (registers scr_env/UreaSCR-v0)
+
+    def run(inject):
+        env = gym.make("scr_env/UreaSCR-v0", cycle="whsc")
+        obs, _ = env.reset(seed=0)
+        mpc = _identified_mpc()
+        mpc.attach(env.unwrapped)
+        actions = []
+        for k in range(12):
+            if inject and k == 6:
+                bad = np.array(obs, dtype=np.float64)
+                bad[3] = np.nan
+                with pytest.raises(ValueError, match="observation contains NaN"):
+                    mpc.predict(bad)
+            a, _ = mpc.predict(obs, episode_start=np.array([k == 0]))
+            actions.append(a)
+            obs, *_ = env.step(a)
+        env.close()
+        return np.array(actions), mpc.stats()["solver_failures"], mpc.model.ekf_.x_
+
+    clean, fail_clean, x_clean = run(False)
+    dirty, fail_dirty, x_dirty = run(True)
+    assert np.array_equal(clean, dirty) and fail_clean == fail_dirty and np.array_equal(x_clean, x_dirty)
+    assert np.all(np.isfinite(x_dirty)) and action_to_rate(dirty[-1][0]) > 0.0

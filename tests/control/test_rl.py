@@ -177,7 +177,7 @@ def test_different_observation_layout_fails_clearly(tmp_path, torch_one_thread):
     policy = load_policy(path, observation_names=tuple(OBS_BASE))
     with pytest.raises(ValueError, match="trained on observations"):
         policy.attach(UreaSCREnv(cycle="whtc", nh3_sensor=True))
-    with pytest.raises(ValueError, match="expects observations of 5"):
+    with pytest.raises(ValueError, match="observation must have 5 entries"):
         policy.predict(np.zeros(6, dtype=np.float32))
     meta = json.loads(path.read_text())
     meta["observation_names"] = meta["observation_names"] + ["nh3_coverage_cell0"]
@@ -200,6 +200,65 @@ def test_shipped_policies_load_in_one_line(name):
     action, _ = policy.predict(np.array([500.0, 550.0, 5.0, 100.0, -1.0], dtype=np.float32),
                                episode_start=np.array([True]))
     assert action.shape == (1,) and np.isfinite(action).all()
+
+
+# ------------------------------------------------------------------------------------------------ observation checks
+class _SumModel:
+    """A stand-in SB3 model whose action depends on the whole (normalised) pipeline output: any change of the
+    pipeline state changes the action."""
+
+    def predict(self, x, deterministic=True):
+        return np.tanh(0.01 * np.asarray(x, dtype=np.float64).sum(axis=1, keepdims=True)).astype(np.float32), None
+
+
+def _toy_policy():
+    from control.rl.policy import RLPolicy
+
+    cfg = PipelineConfig(long_surplus_time_constant_s=600.0)
+    return RLPolicy(_SumModel(), cfg, np.zeros(cfg.output_size), np.ones(cfg.output_size), name="toy")
+
+
+def _observations(n=30, seed=0):
+    rng = np.random.default_rng(seed)
+    obs = np.column_stack([400 + 300 * rng.random(n), np.linspace(540, 600, n), 5 + 3 * rng.random(n),
+                           80 * rng.random(n), 2 * rng.random(n) - 1])
+    return obs.astype(np.float32)
+
+
+def test_rl_policy_rejects_bad_observations_without_touching_the_pipeline():
+    obs = _observations()
+    ref, pol = _toy_policy(), _toy_policy()
+    expected = [ref.predict(o, episode_start=np.array([k == 0]))[0] for k, o in enumerate(obs)]
+    got = []
+    for k, o in enumerate(obs):
+        if k in (4, 17):
+            nan = o.astype(np.float64)
+            nan[1] = np.nan
+            for bad, err, match in ((nan, ValueError, "observation contains NaN or inf at entries \\[1\\]"),
+                                    (np.r_[o, 1.0], ValueError, "observation must have 5 entries"),
+                                    (o[:3], ValueError, "observation must have 5 entries"),
+                                    (np.zeros((2, 2, 5)), ValueError, "observation must have shape"),
+                                    (None, TypeError, "observation")):
+                with pytest.raises(err, match=match):
+                    pol.predict(bad, episode_start=np.array([False]))
+        got.append(pol.predict(o, episode_start=np.array([k == 0]))[0])
+    assert all(np.array_equal(g, e) for g, e in zip(got, expected))
+
+
+def test_rl_policy_batch_with_one_bad_row_is_rejected_whole():
+    obs = _observations(n=6)
+    pol = _toy_policy()
+    batch = np.stack([obs[0], obs[1]])
+    a0, _ = pol.predict(batch, episode_start=np.array([True, True]))
+    assert a0.shape == (2, 1)
+    bad = np.stack([obs[2], obs[3]]).astype(np.float64)
+    bad[1, 4] = np.inf
+    with pytest.raises(ValueError, match=r"\(row, entry\) \[\(1, 4\)\]"):
+        pol.predict(bad)
+    ref = _toy_policy()
+    ref.predict(batch, episode_start=np.array([True, True]))
+    good = np.stack([obs[2], obs[3]])
+    assert np.array_equal(pol.predict(good)[0], ref.predict(good)[0])
 
 
 # ------------------------------------------------------------------------------------------------ surrogate
