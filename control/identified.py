@@ -20,12 +20,35 @@ Structure (n_cells CSTRs in series sharing one lumped solid temperature; gas qua
 with Arrhenius constants k(T) = A exp(-E / (R T)) and the urea decomposition eta(T_in) = logistic(T_in - t50).
 Initial guess: textbook Cu-zeolite magnitudes; 11 parameters (log multipliers and shifts) are identified. The
 state is x = [theta_1 .. theta_n, T]; :meth:`StorageGreyBox.initial_state` starts empty at the inlet temperature.
+
+Signals (time-major arrays, one row per sample of ``dt``):
+
+| argument | shape | columns |
+|---|---|---|
+| ``u`` | (n, 4) | inlet NOx ppm, urea g/min, inlet temperature K, exhaust flow mol/s |
+| ``y`` | (n, 3) | tailpipe NOx ppm, tailpipe NH3 ppm, NOx sensor ppm |
+| ``predict(u)`` | (n, 3) | as ``y`` |
+
+Input checks (``ValueError`` naming the argument, before any work): the shapes above, equal lengths of ``u`` and
+``y``, finite values, at least one sample per record and :data:`MIN_FIT_SAMPLES` in all. A constant input column is
+allowed (unlike the linear models' ``ident.linear._statespace.validate_fit_data``: a step test at fixed flow is
+legitimate here, and the bounded least squares stays well posed). ``fit`` is atomic: the fitted attributes
+(``params_``, ``cost_``, ``sensor_gains_``) are assigned together after the whole identification succeeded, so a
+failed refit leaves a fitted model as it was. Before ``fit`` (or :meth:`StorageGreyBox.from_params`),
+``predict``/``to_casadi``/... raise :class:`ident.base.NotFittedError`. ``save(path)`` / ``StorageGreyBox.load(path)``
+write and read the fitted model in :mod:`ident.io`'s open format (kind ``"storage_greybox"``).
 """
 from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
 
 import casadi as ca
 import numpy as np
 from scipy.optimize import least_squares
+
+from ident.base import as_2d, check_is_fitted, check_same_length
+from ident.io import load_model, register_model, save_model
 
 R_GAS = 8.314462618
 _CP_MOL = 0.0289 * 1250.0  # J/(mol K) exhaust
@@ -33,9 +56,24 @@ _CP_MOL = 0.0289 * 1250.0  # J/(mol K) exhaust
 _NOMINAL = {"omega_mol": 8.0, "a_ads": 3.0e4, "a_des": 3.0e8, "e_des": 95e3, "gamma": 0.9, "a_scr": 2.0e8,
             "e_scr": 65e3, "a_ox": 1.0e6, "e_ox": 110e3, "heat_j_k": 5.0e4, "t50_k": 450.0}
 N_PARAMS = 11
+#: columns of the input and output signals (module docstring)
+N_INPUTS, N_OUTPUTS = 4, 3
+#: samples a fit needs in all: more than N_PARAMS, so that even the NOx residuals alone outnumber the parameters
+MIN_FIT_SAMPLES = N_PARAMS + 1
 _T_MIN_K = 200.0  # lower end of the temperatures the model is evaluated at (guards 1/T; far below any exhaust)
 
 
+def _numeric(name: str, a: Any) -> np.ndarray:
+    """``a`` as a float array, or ValueError naming ``name`` (ragged lists, strings, None)."""
+    if a is None:
+        raise ValueError(f"{name} must be a numeric array, got None")
+    try:
+        return np.asarray(a, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a numeric array: {exc}") from None
+
+
+@register_model("storage_greybox")
 class StorageGreyBox:
     """Grey-box SCR storage model (module docstring), scikit-learn style.
 
@@ -45,6 +83,8 @@ class StorageGreyBox:
     dt : sample time [s].
     max_nfev : least-squares evaluations.
     nh3_weight : weight of the NH3 residual relative to NOx (both divided by their data SD).
+
+    Fitted attributes: ``params_`` (N_PARAMS), ``cost_``, ``sensor_gains_`` (a, b of sensor = a NOx + b NH3).
     """
 
     def __init__(self, n_cells: int = 2, dt: float = 0.5, max_nfev: int = 40, nh3_weight: float = 2.0) -> None:
@@ -119,8 +159,7 @@ class StorageGreyBox:
         Unlike :meth:`to_casadi`'s explicit step (a linearly implicit Euler step clipped to [0, 1]), these
         equations have no kinks: the NLP's bounds keep the coverage in [0, 1], and an SQP method converges on them
         where the clipped step's zero gradients make it stall."""
-        if not hasattr(self, "params_"):
-            raise RuntimeError("StorageGreyBox is not fitted yet: call fit(...) first")
+        check_is_fitted(self, "params_")
         n, p = int(self.n_cells), ca.DM(self.params_)
         t_next = x_next[n]
         res_t = (t_next - self._temperature(x[n], u, p, float(h))) / 100.0
@@ -131,24 +170,65 @@ class StorageGreyBox:
             res.append(x_next[j] - x[j] - h * g)
         return ca.vertcat(*res, res_t), ca.vertcat(y_nox * 1e6, y_nh3 * 1e6)
 
-    def _functions(self) -> None:
+    def _step_function(self) -> ca.Function:
+        """``Function('step_p', [x, u, p], [x_next, y])`` (y = tailpipe NOx, NH3 ppm), symbolic in the parameters."""
         n = int(self.n_cells)
         x, u, p = ca.SX.sym("x", n + 1), ca.SX.sym("u", 4), ca.SX.sym("p", N_PARAMS)
         xn, y = self._step_expr(x, u, p)
-        self._fp = ca.Function("step_p", [x, u, p], [xn, y])
+        return ca.Function("step_p", [x, u, p], [xn, y])
+
+    def _functions(self) -> None:
+        self._fp = self._step_function()
+
+    def _check_settings(self) -> None:
+        n, dt = self.n_cells, self.dt
+        if isinstance(n, bool) or int(n) != n or n < 1:
+            raise ValueError(f"n_cells must be a positive integer, got {n!r}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
+
+    @staticmethod
+    def _check_records(u: Any, y: Any) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The (u, y) records of :meth:`fit`, validated (module docstring): float arrays (n, 4), (n, 3)."""
+        if y is None:
+            if isinstance(u, np.ndarray) or not isinstance(u, (list, tuple)):
+                raise ValueError("y is required: fit(u, y) with u (n, 4) and y (n, 3), or fit(records) with a list "
+                                 "of (u, y) records")
+            raw = list(u)
+            if not raw:
+                raise ValueError("records is empty: fit needs at least one (u, y) record")
+        else:
+            raw = [(u, y)]
+        records = []
+        for i, rec in enumerate(raw):
+            tag = "" if y is not None else f" of record {i}"
+            if y is None and (not isinstance(rec, (list, tuple)) or len(rec) != 2):
+                raise ValueError(f"records[{i}] must be a (u, y) pair, got {type(rec).__name__}")
+            ur = as_2d(f"u{tag}", _numeric(f"u{tag}", rec[0]), n_columns=N_INPUTS)
+            yr = as_2d(f"y{tag}", _numeric(f"y{tag}", rec[1]), n_columns=N_OUTPUTS)
+            check_same_length(**{f"u{tag}": ur, f"y{tag}": yr})
+            records.append((ur, yr))
+        total = sum(r[0].shape[0] for r in records)
+        if total < MIN_FIT_SAMPLES:
+            raise ValueError(f"too few samples to identify {N_PARAMS} parameters: {total} in all, at least "
+                             f"{MIN_FIT_SAMPLES} are needed")
+        return records
 
     # --- fitting ------------------------------------------------------------------------------------------------
-    def fit(self, u: np.ndarray, y: np.ndarray) -> StorageGreyBox:
-        """Identify from inputs ``u`` (n, 4) and outputs ``y`` (n, 3) (the :mod:`ident.plant_data` signals); a list
-        of (u, y) records may be given as ``u`` with ``y=None``."""
-        records = u if y is None else [(u, y)]
-        records = [(np.asarray(a, float), np.asarray(b, float)) for a, b in records]
-        self._functions()
+    def fit(self, u: np.ndarray | list, y: np.ndarray | None = None) -> StorageGreyBox:
+        """Identify from inputs ``u`` (n, 4) and outputs ``y`` (n, 3) (the :mod:`ident.plant_data` signals, module
+        docstring); a list of (u, y) records may be given as ``u`` with ``y=None``.
+
+        The data are checked first (``ValueError`` naming the argument: shape, columns, lengths, NaN/inf, too few
+        samples); the fitted attributes are set only when the whole identification succeeded."""
+        self._check_settings()
+        records = self._check_records(u, y)
+        fp = self._step_function()
         n = int(self.n_cells)
         p = ca.SX.sym("p", N_PARAMS)
         res = []
         for ur, yr in records:
-            sim = self._fp.mapaccum("sim", ur.shape[0], [0], [0])
+            sim = fp.mapaccum("sim", ur.shape[0], [0], [0])
             x0 = np.r_[np.zeros(n), ur[0, 2]]
             _, ys = sim(x0, ur.T, ca.repmat(p, 1, ur.shape[0]))
             s_nox = max(float(np.std(yr[:, 0])), 1.0)
@@ -161,20 +241,23 @@ class StorageGreyBox:
         sol = least_squares(lambda v: np.asarray(fr(v)).ravel(), np.zeros(N_PARAMS),
                             jac=lambda v: np.asarray(fj(v)), bounds=(-5.0 * np.ones(N_PARAMS), 5.0 * np.ones(N_PARAMS)),
                             max_nfev=self.max_nfev, x_scale=1.0)
-        self.params_ = sol.x
-        self.cost_ = float(sol.cost)
+        params = sol.x
         # sensor = a NOx + b NH3, linear least squares on the simulated outputs
         A, b = [], []
         for ur, yr in records:
-            ys = self.predict(ur)
+            ys = self._simulate(fp, params, ur)
             A.append(ys[:, :2])
             b.append(yr[:, 2])
-        self.sensor_gains_ = np.linalg.lstsq(np.vstack(A), np.concatenate(b), rcond=None)[0]
+        sensor_gains = np.linalg.lstsq(np.vstack(A), np.concatenate(b), rcond=None)[0]
+        if not (np.all(np.isfinite(params)) and np.all(np.isfinite(sensor_gains))):
+            raise FloatingPointError("the identification gave non-finite parameters; the model is left unchanged")
+        self._fp, self.params_, self.cost_, self.sensor_gains_ = fp, params, float(sol.cost), sensor_gains
         return self
 
     @property
     def storage_capacity_mol(self) -> float:
         """Identified NH3 storage capacity of the brick [mol]."""
+        check_is_fitted(self, "params_")
         return float(_NOMINAL["omega_mol"] * np.exp(self.params_[0]))
 
     @classmethod
@@ -182,14 +265,53 @@ class StorageGreyBox:
                     dt: float = 0.5) -> StorageGreyBox:
         """A fitted model from identified numbers (``params_``, ``sensor_gains_``), e.g. read back from JSON."""
         m = cls(n_cells=n_cells, dt=dt)
+        m._check_settings()
+        params = np.asarray(params, dtype=np.float64)
+        sensor_gains = np.asarray(sensor_gains, dtype=np.float64)
+        if params.shape != (N_PARAMS,) or not np.all(np.isfinite(params)):
+            raise ValueError(f"params must be {N_PARAMS} finite numbers, got shape {params.shape}: {params.tolist()}")
+        if sensor_gains.shape != (2,) or not np.all(np.isfinite(sensor_gains)):
+            raise ValueError(f"sensor_gains must be 2 finite numbers (a, b of sensor = a NOx + b NH3), got shape "
+                             f"{sensor_gains.shape}: {sensor_gains.tolist()}")
         m._functions()
-        m.params_ = np.asarray(params, dtype=np.float64)
-        m.sensor_gains_ = np.asarray(sensor_gains, dtype=np.float64)
+        m.params_ = params
+        m.sensor_gains_ = sensor_gains
+        return m
+
+    # --- saving (ident.io: JSON + NPZ, no pickle) -----------------------------------------------------------------
+    def _get_state(self) -> tuple[dict, dict[str, np.ndarray]]:
+        check_is_fitted(self, "params_")
+        meta = {"n_cells": int(self.n_cells), "dt": float(self.dt), "max_nfev": int(self.max_nfev),
+                "nh3_weight": float(self.nh3_weight)}
+        if hasattr(self, "cost_"):
+            meta["cost"] = float(self.cost_)
+        return meta, {"params": self.params_, "sensor_gains": self.sensor_gains_}
+
+    @classmethod
+    def _from_state(cls, meta: dict, arrays: dict[str, np.ndarray]) -> StorageGreyBox:
+        m = cls.from_params(arrays["params"], arrays["sensor_gains"], n_cells=int(meta["n_cells"]),
+                            dt=float(meta["dt"]))
+        m.max_nfev, m.nh3_weight = int(meta.get("max_nfev", m.max_nfev)), float(meta.get("nh3_weight", m.nh3_weight))
+        if "cost" in meta:
+            m.cost_ = float(meta["cost"])
+        return m
+
+    def save(self, path: str | Path) -> Path:
+        """Write ``<path>.json`` + ``<path>.npz`` (:func:`ident.io.save_model`); return the JSON path."""
+        return save_model(self, path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> StorageGreyBox:
+        """Read a model written by :meth:`save` (:func:`ident.io.load_model`; kind ``"storage_greybox"``)."""
+        m = load_model(path)
+        if not isinstance(m, cls):
+            raise TypeError(f"{path} holds a {type(m).__name__}, not a {cls.__name__}")
         return m
 
     def desorption_ppm(self, theta: ca.SX, t_k: ca.SX, flow_mol_s: float) -> ca.SX:
         """NH3 [ppm] that a cell at coverage ``theta`` and solid temperature ``t_k`` desorbs into NH3- and NOx-free
         gas at ``flow_mol_s`` (the identified model's gas balance with no inlet NH3; symbolic or numeric)."""
+        check_is_fitted(self, "params_")
         nom, p, n = _NOMINAL, self.params_, int(self.n_cells)
         # clipped to the physical range, as in the step: NLP iterates outside the box must not reach the pole of
         # the gas balance at theta > 1 or 1 / T at T <= 0 (NaN gradients of the terminal cost)
@@ -206,8 +328,7 @@ class StorageGreyBox:
     # --- the DynamicModel protocol -----------------------------------------------------------------------------
     def to_casadi(self) -> ca.Function:
         """``Function('step', [x, u], [x_next, y])``, y = [tailpipe NOx ppm, NH3 ppm, sensor ppm] (physical units)."""
-        if not hasattr(self, "params_"):
-            raise RuntimeError("StorageGreyBox is not fitted yet: call fit(...) first")
+        check_is_fitted(self, "params_")
         n = int(self.n_cells)
         x, u = ca.SX.sym("x", n + 1), ca.SX.sym("u", 4)
         xn, y = self._step_expr(x, u, ca.DM(self.params_))
@@ -215,15 +336,31 @@ class StorageGreyBox:
         return ca.Function("step", [x, u], [xn, ca.vertcat(y, a * y[0] + b * y[1])], ["x", "u"], ["x_next", "y"])
 
     def initial_state(self, u: np.ndarray, y: np.ndarray | None = None) -> np.ndarray:
-        """Empty storage at the first inlet temperature."""
-        return np.r_[np.zeros(int(self.n_cells)), float(np.asarray(u, float).reshape(-1, 4)[0, 2])]
+        """Empty storage at the first inlet temperature of ``u`` ((n, 4) or one row of 4 inputs)."""
+        u = _numeric("u", u)
+        u = as_2d("u", u[None, :] if u.ndim == 1 else u, n_columns=N_INPUTS)
+        return np.r_[np.zeros(int(self.n_cells)), float(u[0, 2])]
+
+    @staticmethod
+    def _simulate(fp: ca.Function, params: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Free run (n, 2) of the step ``fp`` with ``params`` from the empty storage at the first inlet temperature."""
+        n = fp.size1_in(0) - 1
+        f = fp.mapaccum("sim", u.shape[0], [0], [0])
+        _, ys = f(np.r_[np.zeros(n), float(u[0, 2])], u.T, np.tile(params[:, None], (1, u.shape[0])))
+        return np.asarray(ys).T
 
     def predict(self, u: np.ndarray, y0: np.ndarray | None = None) -> np.ndarray:
-        """Free-run simulation (n, 3) from :meth:`initial_state`."""
-        u = np.asarray(u, float)
-        f = self._fp.mapaccum("sim", u.shape[0], [0], [0])
-        _, ys = f(self.initial_state(u), u.T, np.tile(self.params_[:, None], (1, u.shape[0])))
-        ys = np.asarray(ys).T
-        if hasattr(self, "sensor_gains_"):
-            return np.column_stack([ys, ys @ self.sensor_gains_])
-        return ys
+        """Free-run simulation (n, 3) [tailpipe NOx ppm, NH3 ppm, sensor ppm] from :meth:`initial_state` for inputs
+        ``u`` (n, 4) (module docstring); ``y0`` is not used (the initial state comes from ``u``).
+
+        ``NotFittedError`` before :meth:`fit`; ``ValueError`` naming ``u`` for a wrong shape or NaN/inf."""
+        check_is_fitted(self, "params_")
+        u = _numeric("u", u)
+        if u.ndim != 2:
+            raise ValueError(f"u must be a (n_samples, {N_INPUTS}) array [inlet NOx ppm, urea g/min, inlet temperature "
+                             f"K, exhaust flow mol/s], got shape {np.shape(u)}")
+        u = as_2d("u", u, n_columns=N_INPUTS)
+        if not hasattr(self, "_fp"):
+            self._functions()
+        ys = self._simulate(self._fp, self.params_, u)
+        return np.column_stack([ys, ys @ self.sensor_gains_])

@@ -96,3 +96,135 @@ def test_measured_obs_must_match_the_measured_outputs():
     with pytest.raises(ValueError, match="measured_obs"):
         IdentifiedModelAdapter(m, np.zeros(4), np.ones(4), np.zeros(3), np.ones(3), measured_output=(2, 1),
                                measured_obs=(3,))
+
+
+# ------------------------------------------------------------------------------------------------ input checks
+def _data(n=120, seed=0):
+    """Inputs (n, 4) and the outputs (n, 3) of the grey-box itself (PARAMS)."""
+    rng = np.random.default_rng(seed)
+    u = np.column_stack([rng.uniform(300, 900, n), np.repeat(rng.uniform(0, 40, n // 10 + 1), 10)[:n],
+                         560.0 + np.linspace(0, 40, n), rng.uniform(4, 10, n)])
+    return u, StorageGreyBox.from_params(PARAMS, np.array([0.95, 1.0])).predict(u)
+
+
+def _fitted():
+    u, y = _data()
+    return StorageGreyBox(max_nfev=2).fit(u, y)
+
+
+def _fitted_state(m):
+    return m.params_.copy(), m.sensor_gains_.copy(), m.cost_
+
+
+def _bad_fit_data():
+    u, y = _data()
+    nan_u, nan_y = u.copy(), y.copy()
+    nan_u[7, 1] = np.nan
+    nan_y[9, 0] = np.inf
+    return [
+        ((u, y[:, :2]), r"y must have 3 columns, got 2"),
+        ((u[:, :3], y), r"u must have 4 columns, got 3"),
+        ((u, y[:-1]), r"mismatched lengths \(u: 120, y: 119\)"),
+        ((nan_u, y), r"u contains NaN or inf \(first at sample 7\)"),
+        ((u, nan_y), r"y contains NaN or inf \(first at sample 9\)"),
+        ((u[:0], y[:0]), r"u has 0 samples"),
+        ((u[:5], y[:5]), r"too few samples"),
+        ((u[:, 0], y), r"u must have 4 columns"),
+        ((None, y), r"u must be a numeric array"),
+        ((u, None), r"y is required"),
+        (([],), r"records is empty"),
+        (([(u, y), (u, y[:, :2])], None), r"y of record 1 must have 3 columns"),
+        (([(u, y), u], None), r"records\[1\] must be a \(u, y\) pair"),
+    ]
+
+
+def test_fit_rejects_bad_data_at_entry_and_keeps_a_fitted_model():
+    m = _fitted()
+    state = _fitted_state(m)
+    for args, match in _bad_fit_data():
+        with pytest.raises(ValueError, match=match):
+            m.fit(*args)
+        assert all(np.array_equal(a, b) for a, b in zip(state, _fitted_state(m)))
+
+
+def test_a_fit_failing_midway_leaves_the_model_as_it_was(monkeypatch):
+    """The review's case: the optimisation ran, the sensor-gain step failed, params_ was overwritten but
+    sensor_gains_ stale. Now both or neither."""
+    import control.identified as ci
+
+    m = _fitted()
+    state = _fitted_state(m)
+    u, y = _data(seed=1)
+
+    def boom(*a, **k):
+        raise np.linalg.LinAlgError("sensor regression failed")
+
+    monkeypatch.setattr(ci.np.linalg, "lstsq", boom)
+    with pytest.raises(np.linalg.LinAlgError):
+        m.fit(u, y)
+    assert all(np.array_equal(a, b) for a, b in zip(state, _fitted_state(m)))
+    monkeypatch.undo()
+    fresh = StorageGreyBox(max_nfev=2)
+    monkeypatch.setattr(ci, "least_squares", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("optimiser")))
+    with pytest.raises(RuntimeError, match="optimiser"):
+        fresh.fit(u, y)
+    assert not hasattr(fresh, "params_") and not hasattr(fresh, "sensor_gains_")
+
+
+def test_fit_is_what_it_was_on_valid_data():
+    """The checks change no number: a list of records and the single-record call agree with a direct computation."""
+    u, y = _data()
+    a = StorageGreyBox(max_nfev=2).fit(u, y)
+    b = StorageGreyBox(max_nfev=2).fit([(u, y)], None)
+    c = StorageGreyBox(max_nfev=2).fit([(u.tolist(), y.tolist())])
+    for m in (b, c):
+        assert np.array_equal(a.params_, m.params_) and np.array_equal(a.sensor_gains_, m.sensor_gains_)
+    assert np.array_equal(a.predict(u), c.predict(u.tolist()))
+
+
+def test_unfitted_model_raises_not_fitted_error(tmp_path):
+    from ident.base import NotFittedError
+
+    u, _ = _data()
+    m = StorageGreyBox()
+    for call in (lambda: m.predict(u), m.to_casadi, lambda: m.storage_capacity_mol,
+                 lambda: m.save(tmp_path / "unfitted")):
+        with pytest.raises(NotFittedError, match="StorageGreyBox is not fitted"):
+            call()
+    assert not list(tmp_path.iterdir())
+
+
+def test_predict_rejects_bad_inputs():
+    m = StorageGreyBox.from_params(PARAMS, np.array([0.95, 1.0]))
+    u, _ = _data()
+    bad = u.copy()
+    bad[3, 2] = np.nan
+    for arg, match in ((bad, r"u contains NaN or inf \(first at sample 3\)"), (u[:, :3], "u must have 4 columns"),
+                       (u[0], r"u must be a \(n_samples, 4\) array"), (u[:0], "u has 0 samples"),
+                       (None, "u must be a numeric array")):
+        with pytest.raises(ValueError, match=match):
+            m.predict(arg)
+
+
+def test_from_params_checks_the_numbers():
+    with pytest.raises(ValueError, match="params must be 11 finite numbers"):
+        StorageGreyBox.from_params(np.zeros(10), np.array([0.95, 1.0]))
+    with pytest.raises(ValueError, match="params must be 11 finite numbers"):
+        StorageGreyBox.from_params(np.r_[np.zeros(10), np.nan], np.array([0.95, 1.0]))
+    with pytest.raises(ValueError, match="sensor_gains must be 2 finite numbers"):
+        StorageGreyBox.from_params(PARAMS, np.array([0.95]))
+    with pytest.raises(ValueError, match="n_cells must be a positive integer"):
+        StorageGreyBox.from_params(PARAMS, np.array([0.95, 1.0]), n_cells=0)
+
+
+def test_save_and_load_round_trip(tmp_path):
+    from ident.io import load_model
+
+    m = _fitted()
+    path = m.save(tmp_path / "greybox")
+    back = StorageGreyBox.load(path)
+    u, _ = _data(seed=2)
+    assert np.array_equal(back.params_, m.params_) and np.array_equal(back.sensor_gains_, m.sensor_gains_)
+    assert back.n_cells == m.n_cells and back.dt == m.dt and back.cost_ == m.cost_
+    assert np.array_equal(back.predict(u), m.predict(u))
+    assert isinstance(load_model(tmp_path / "greybox.json"), StorageGreyBox)
