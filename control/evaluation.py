@@ -12,6 +12,7 @@ information, see :mod:`control.protocol`); after the last step it copies the pol
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -19,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from scr_env.cycles import ExhaustTrace
 from scr_env.envs.urea_scr import UreaSCREnv
 
 #: KPIs shown by :func:`comparison_table` (all from ``info["episode_kpis"]``), with their units
@@ -132,7 +134,21 @@ def run_episode(policy: Any, env: UreaSCREnv, seed: int | None = 0, *, name: str
                          timing=_timing(ms[:k + 1]), stats=stats, trajectory=rec)
 
 
-def evaluate(policy: Any, cycles: Iterable[str] = ("whtc",), seeds: Iterable[int | None] = (0,),
+def _as_sequence(value: Any, name: str, single: tuple[type, ...], none_is_single: bool = False) -> list:
+    """``value`` as a list: one element if it is a single item of the types ``single`` (or None, with
+    ``none_is_single``), else its elements; ``TypeError`` / ``ValueError`` naming ``name`` if not iterable / empty."""
+    if isinstance(value, single) or (value is None and none_is_single):
+        return [value]
+    try:
+        out = list(value)
+    except TypeError:
+        raise TypeError(f"{name} must be one item or a sequence of them, got {type(value).__name__}") from None
+    if not out:
+        raise ValueError(f"{name} is empty: give at least one")
+    return out
+
+
+def evaluate(policy: Any, cycles: str | Iterable[str] = ("whtc",), seeds: int | None | Iterable[int | None] = (0,),
              env_kwargs: dict | None = None, *, name: str | None = None, record_trajectory: bool = False,
              max_steps: int | None = None, reset_options: dict | None = None) -> list[EpisodeResult]:
     """Run ``policy`` on every cycle x seed and return one :class:`EpisodeResult` each (cycle-major order).
@@ -140,13 +156,19 @@ def evaluate(policy: Any, cycles: Iterable[str] = ("whtc",), seeds: Iterable[int
     Parameters
     ----------
     policy : a :class:`~control.protocol.PolicyPredictor` (optionally with ``attach(env)`` and ``stats()``).
-    cycles : cycle names (or anything ``UreaSCREnv(cycle=...)`` accepts).
-    seeds : reset seeds (sensor noise; the random cycle).
+    cycles : cycle names (or anything ``UreaSCREnv(cycle=...)`` accepts); a single one (``"whtc"``, a path, an
+        ``ExhaustTrace``) is taken as a one-element sequence, never as its characters.
+    seeds : reset seeds (sensor noise; the random cycle); a single int (or None: unseeded) is a one-element
+        sequence; numpy integers are passed on as ints.
     env_kwargs : further arguments of :class:`UreaSCREnv` (``cycle`` is set from ``cycles``).
     name : label in results and tables (default: the policy's class name).
     record_trajectory : keep the per-step signals in ``EpisodeResult.trajectory``.
     max_steps : stop each episode early (smoke tests); KPIs are then empty.
     """
+    cycles = _as_sequence(cycles, "cycles", (str, os.PathLike, ExhaustTrace))
+    # numpy integers as Python ints (gymnasium's reset takes only those)
+    seeds = [int(s) if isinstance(s, np.integer) else s
+             for s in _as_sequence(seeds, "seeds", (int, np.integer), none_is_single=True)]
     kw = dict(env_kwargs or {})
     kw.pop("cycle", None)
     results = []

@@ -46,3 +46,24 @@ def test_evaluate_whsc_kpis_hooks_and_table():
 def test_max_steps_stops_early_without_kpis():
     res = evaluate(_Const(0.0), cycles=("whtc",), max_steps=5)
     assert res[0].kpis == {} and res[0].timing["policy_time_ms_median"] >= 0
+
+
+def test_a_single_cycle_and_seed_are_one_element_sequences():
+    """evaluate(policy, cycles="whsc") runs the WHSC, not the cycles 'w', 'h', 's', 'c'."""
+    res = evaluate(_Const(0.1), cycles="whsc", seeds=3, max_steps=3)
+    assert [(r.cycle, r.seed) for r in res] == [("whsc", 3)]
+    res = evaluate(_Const(0.1), cycles=["whsc"], seeds=np.int64(2), max_steps=3)
+    assert [(r.cycle, r.seed) for r in res] == [("whsc", 2)]
+    res = evaluate(_Const(0.1), cycles=("whsc",), seeds=None, max_steps=3)
+    assert [r.seed for r in res] == [None]
+
+
+def test_empty_or_non_iterable_cycles_and_seeds_are_refused():
+    import pytest
+
+    with pytest.raises(ValueError, match="cycles is empty"):
+        evaluate(_Const(0.1), cycles=(), max_steps=3)
+    with pytest.raises(ValueError, match="seeds is empty"):
+        evaluate(_Const(0.1), cycles="whsc", seeds=[], max_steps=3)
+    with pytest.raises(TypeError, match="seeds must be one item or a sequence"):
+        evaluate(_Const(0.1), cycles="whsc", seeds=1.5, max_steps=3)
