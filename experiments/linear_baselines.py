@@ -4,9 +4,11 @@ Protocol (Paper IV): 1200 samples at Ts = 0.5 s from a WHTC segment, first 900 f
 validation, every signal normalised with the estimation statistics; output: tailpipe NOx. FIT and MSE on the
 simulated output in normalised units, initial state estimated from each record (as MATLAB ``compare``).
 
-    python -m experiments.linear_baselines [--json PATH] [--seed 0] [--synthetic]
+    python -m experiments.linear_baselines [--json PATH] [--seed 0] [--design production|excitation] [--synthetic]
 
-The data come from :func:`ident.plant_data.whtc_dataset`; ``--synthetic`` uses the surrogate of
+The data come from :func:`ident.plant_data.whtc_dataset` under the dosing design ``--design`` (default: the thesis'
+production feedforward dosing; ``excitation`` adds random ANR steps, and was the only design until 2026-11-24);
+``--synthetic`` uses the surrogate of
 :func:`ident.plant_data.synthetic_scr_dataset` instead (for development while the environment rollout is missing;
 the JSON's ``data_source`` says which).
 """
@@ -24,7 +26,14 @@ from ident.dataset import IODataset
 from ident.linear import ARX, N4SID, OutputError, StateSpacePEM
 from ident.metrics import compare
 from ident.multiple_model import MultipleModel, quantile_edges
-from ident.plant_data import PAPER4_N_ESTIMATION, PAPER4_N_SAMPLES, synthetic_scr_dataset, whtc_dataset
+from ident.plant_data import (
+    PAPER4_DEFAULT_DESIGN,
+    PAPER4_DESIGNS,
+    PAPER4_N_ESTIMATION,
+    PAPER4_N_SAMPLES,
+    synthetic_scr_dataset,
+    whtc_dataset,
+)
 from ident.preprocessing import normalize_split
 
 #: Paper IV Table 2 (published, on the authors' simulator): estimation FIT %, MSE, validation FIT %, MSE.
@@ -72,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", help="write the results to this JSON file")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--design", choices=sorted(PAPER4_DESIGNS), default=PAPER4_DEFAULT_DESIGN,
+                    help="dosing design of the simulator data (ident.plant_data.PAPER4_DESIGNS)")
     ap.add_argument("--synthetic", action="store_true",
                     help="use the synthetic SCR surrogate instead of the environment (development only)")
     args = ap.parse_args(argv)
@@ -79,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
         ds, source = synthetic_scr_dataset(seed=args.seed), "synthetic surrogate (ident.plant_data)"
     else:
         try:
-            ds, source = whtc_dataset(seed=args.seed), "scr_env WHTC rollout"
+            ds = whtc_dataset(seed=args.seed, design=args.design)
+            source = f"scr_env WHTC rollout, {args.design} design ({PAPER4_DESIGNS[args.design].description})"
         except NotImplementedError as exc:
             print(f"ident.plant_data.whtc_dataset is not available yet ({exc}); run with --synthetic to use the "
                   "surrogate data", file=sys.stderr)

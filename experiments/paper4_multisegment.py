@@ -2,14 +2,19 @@
 segment? And the NH3 slip as a second output (the thesis' stated future work).
 
 Each segment is 600 s (1200 samples at 0.5 s) of a WHTC, WHSC or seeded random cycle (non-overlapping windows,
-hot start; :func:`segment_list`), open-loop feedforward dosing perturbed by seeded random steps (one experiment per
-cycle and seed, the segment a slice of it). Two dosing designs (``--design``), both fixed before any fit:
+hot start; :func:`segment_list`), open-loop feedforward dosing, perturbed by seeded random steps in two of the
+designs (one experiment per cycle and seed, the segment a slice of it). Dosing designs (``--design``):
 
-* ``paper4`` (default): the design of :func:`ident.plant_data.whtc_dataset`, ANR 0.5 times ``1 + e``, e random
-  steps in [-1, 1] held 4-60 s (ANR 0 to 1). Our catalyst stores all the NH3 of this dosing, so the slip is
-  (almost) never identifiable under it.
+* ``production``: the thesis' data (:data:`ident.plant_data.PAPER4_DESIGNS`), the feedforward at ANR 0.5 alone,
+  as the reproduction's table (``reproduce_paper4``, default design since 2026-11-24);
+* ``excitation`` (default; called ``paper4`` until 2026-11-24, when it was the design of Paper IV's table): ANR 0.5 times
+  ``1 + e``, e random steps in [-1, 1] held 4-60 s (ANR 0 to 1). Our catalyst stores all the NH3 of this dosing,
+  so the slip is (almost) never identifiable under it;
 * ``slip``: ANR 1.0 times ``1 + e`` with the same steps (ANR 0 to 2): over-dosing phases that fill the store and
   let NH3 slip on the segments hot enough to release it, for the second-output study.
+
+``excitation`` and ``slip`` were fixed before any fit; ``production`` was added on 2026-11-24 as the thesis' design
+(reasons in :func:`ident.plant_data.whtc_dataset`), after its Paper IV table had been seen.
 
 M-I..M-V exactly as :mod:`experiments.reproduce_paper4` (900/300 split, estimation statistics, M-V's candidate
 chosen on the last 25 % of the estimation data; validation FIT of the output simulated on from the estimation data).
@@ -38,7 +43,7 @@ estimation and the validation part):
 * a MIMO linear state-space model (M-I's estimator, simulation error) of order 2 and 4 fitted to NOx and slip
   jointly, scored per output against M-I fitted to each output alone: does one model of both do as well?
 
-    python -m experiments.paper4_multisegment [--json PATH] [--segments 4] [--design paper4|slip]
+    python -m experiments.paper4_multisegment [--json PATH] [--segments 4] [--design excitation|production|slip]
 """
 from __future__ import annotations
 
@@ -49,7 +54,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -59,15 +63,15 @@ from experiments._stats import paired_verdict as verdict
 from experiments._stats import summarise
 from experiments.reproduce_paper4 import MODELS, fit_models
 from ident.dataset import IODataset
-from ident.excitation import ExcitationSignal, RandomSteps
+from ident.excitation import RandomSteps
 from ident.linear import StateSpacePEM
 from ident.metrics import fit_percent
 from ident.plant_data import (
-    PAPER4_BASE_ANR,
+    PAPER4_DESIGNS,
     PAPER4_DT_S,
-    PAPER4_EXCITATION,
     PAPER4_N_ESTIMATION,
     PAPER4_N_SAMPLES,
+    DosingDesign,
     excitation_dataset,
 )
 from ident.preprocessing import Normalizer
@@ -79,18 +83,9 @@ SLIP_MIN_SD_PPM = 0.1
 MIMO_ORDERS = (2, 4)
 
 
-@dataclass(frozen=True)
-class DosingDesign:
-    """Open-loop identification dosing: feedforward at ``base_anr`` times ``1 + e(t)``."""
-
-    base_anr: float
-    excitation: ExcitationSignal
-    description: str
-
-
 DESIGNS: dict[str, DosingDesign] = {
-    "paper4": DosingDesign(PAPER4_BASE_ANR, PAPER4_EXCITATION,
-                           "Paper IV's data design: ANR 0.5 x (1 + e), e random steps in [-1, 1] held 4-60 s"),
+    "excitation": PAPER4_DESIGNS["excitation"],
+    "production": PAPER4_DESIGNS["production"],
     "slip": DosingDesign(1.0, RandomSteps(low=-1.0, high=1.0, min_hold_s=4.0, max_hold_s=60.0),
                          "over-dosing phases: ANR 1.0 x (1 + e), e random steps in [-1, 1] held 4-60 s (ANR 0-2)"),
 }
@@ -113,7 +108,7 @@ def segment_list(n: int) -> list[tuple[str, int, float]]:
     return out[:n]
 
 
-def load_segment(cycle: str, seed: int, start_s: float, design: str = "paper4") -> IODataset:
+def load_segment(cycle: str, seed: int, start_s: float, design: str = "excitation") -> IODataset:
     """One segment's record (inputs and the three outputs of :mod:`ident.plant_data`) under a dosing design."""
     if design not in DESIGNS:
         raise ValueError(f"unknown design {design!r}; choose from {sorted(DESIGNS)}")
@@ -212,8 +207,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", help="write the results to this JSON file")
     ap.add_argument("--segments", type=int, default=4,
                     help="number of segments (default 4, about 1-2 min; 15 for the full run)")
-    ap.add_argument("--design", choices=sorted(DESIGNS), default="paper4",
-                    help="dosing design (module docstring): paper4 (default) or slip (over-dosing phases)")
+    ap.add_argument("--design", choices=sorted(DESIGNS), default="excitation",
+                    help="dosing design (module docstring): excitation (default: random ANR steps), production (the "
+                         "thesis' feedforward alone) or slip (over-dosing phases)")
     args = ap.parse_args(argv)
     if args.segments < 2:
         ap.error("--segments must be at least 2 (the conclusions are paired tests over segments)")

@@ -3,8 +3,9 @@
 * :func:`excitation_dataset`: roll the environment out over a drive cycle under the industrial feedforward dosing
   (AdBlue proportional to the upstream NOx molar flow, at a base NH3-to-NOx ratio) perturbed by a seeded excitation
   signal, open loop, and return a segment as an :class:`~ident.dataset.IODataset`.
-* :func:`whtc_dataset`: Paper IV's data set, 1200 samples at 0.5 s from a WHTC segment with an informative dosing
-  excitation (segment and design in its docstring).
+* :func:`whtc_dataset`: Paper IV's data set, 1200 samples at 0.5 s from a WHTC segment under one of the dosing
+  designs of :data:`PAPER4_DESIGNS`: the thesis' production (feedforward) dosing, or an informative random-step
+  excitation of it (segment and designs in its docstring).
 * :func:`synthetic_scr_dataset`: a small hand-written SCR-like surrogate (NH3 coverage state, Arrhenius-type
   temperature dependence, flow-dependent residence time) for fast unit tests of the identification code. It is
   *not* the project's simulator and its figures must not be reported as such.
@@ -28,6 +29,7 @@ the input is uncorrelated with the output noise and output-error / subspace esti
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
@@ -54,10 +56,38 @@ PAPER4_SEGMENT_COLD_START = False
 #: 325 ppm for 619 ppm at the inlet, i.e. about 50 %).
 PAPER4_BASE_ANR = 0.5
 
-#: The dosing excitation of :func:`whtc_dataset`: the ANR is multiplied by ``1 + e(t)`` with e(t) multi-level random
-#: steps in [-1, 1] held 4-60 s (ANR 0 to 1), so the catalyst sees no dosing, partial and full dosing at every
+#: The dosing excitation of the ``"excitation"`` design: the ANR is multiplied by ``1 + e(t)`` with e(t) multi-level
+#: random steps in [-1, 1] held 4-60 s (ANR 0 to 1), so the catalyst sees no dosing, partial and full dosing at every
 #: operating point, on time scales from the sensor lag to the NH3 storage.
 PAPER4_EXCITATION = RandomSteps(low=-1.0, high=1.0, min_hold_s=4.0, max_hold_s=60.0)
+
+
+@dataclass(frozen=True)
+class DosingDesign:
+    """Open-loop identification dosing: the feedforward at ``base_anr`` (NH3/NOx molar ratio) times ``1 + e(t)``,
+    ``e`` the seeded ``excitation`` signal (None: the feedforward alone)."""
+
+    base_anr: float
+    excitation: ExcitationSignal | None
+    description: str
+
+
+#: Paper IV's data designs on our simulator (see :func:`whtc_dataset`). ``"production"`` is the thesis': its
+#: simulator was driven by the signals *measured* on an engine running the WHTC (Paper III section 2: "the
+#: simulator uses the following measured input signals", the urea dosing among them), i.e. by the truck's own
+#: dosing, which Paper IV describes as "related to the NOx input concentration and to the exhaust flow", zero
+#: "for low exhaust flow or low NOx input concentration" (Paper IV section 2.2, Figure 2): a feedforward on the
+#: NOx flow. ``"excitation"`` adds random ANR steps to it (beyond the thesis: urea independent of the NOx flow).
+PAPER4_DESIGNS: dict[str, DosingDesign] = {
+    "production": DosingDesign(
+        PAPER4_BASE_ANR, None,
+        "the thesis' data: production feedforward dosing, ANR 0.5 x upstream NOx flow, no excitation"),
+    "excitation": DosingDesign(
+        PAPER4_BASE_ANR, PAPER4_EXCITATION,
+        "beyond the thesis: ANR 0.5 x (1 + e), e random steps in [-1, 1] held 4-60 s (ANR 0 to 1)"),
+}
+#: The design of the Paper IV reproduction: the thesis' own.
+PAPER4_DEFAULT_DESIGN = "production"
 
 SIM_INPUT_NAMES = ("inlet_nox_ppm", "urea_dosing_g_min", "inlet_temperature_k", "exhaust_flow_mol_s")
 SIM_INPUT_UNITS = ("ppm", "g/min", "K", "mol/s")
@@ -163,28 +193,42 @@ def excitation_dataset(cycle: Any = "whtc", seed: int = 0, dt: float = 0.5, base
                      input_units=SIM_INPUT_UNITS, output_units=SIM_OUTPUT_UNITS, t0=i0 * dt, meta=meta)
 
 
-def whtc_dataset(seed: int = 0) -> IODataset:
+def whtc_dataset(seed: int = 0, design: str = PAPER4_DEFAULT_DESIGN) -> IODataset:
     """Paper IV's data set on our simulator: 1200 samples at Ts = 0.5 s (first 900 estimation, last 300 validation).
 
     Segment: the **hot-start WHTC from 350 s to 950 s** (:data:`PAPER4_SEGMENT_START_S`). It was chosen before
-    fitting any model, as the 600 s window of the hot WHTC (scanned in 25 s steps under this dosing design) whose
-    statistics come closest to Paper III Table 1 (relative RMS distance over the means and SDs of the four inputs
-    and the tailpipe NOx). Table 1: inlet NOx 619 / 482 ppm (mean / SD), temperature 534 / 48 K, flow
-    3.6 / 1.3 mol/s, tailpipe NOx 325 / 267 ppm; ours: about 524 / 507 ppm, 546 / 25 K, 4.6 / 2.6 mol/s,
-    196 / 243 ppm. The cold WHTC was not used: the thesis' Figure 2 never shows the SCR inlet below about 450 K,
-    and a cold window leaves the whole warm-up in the estimation part and a hot, steady validation part. No WHTC
-    window reaches the thesis' temperature spread (SD 48 K) hot.
+    fitting any model, as the 600 s window of the hot WHTC (scanned in 25 s steps under the excitation design)
+    whose statistics come closest to Paper III Table 1 (relative RMS distance over the means and SDs of the four
+    inputs and the tailpipe NOx). Table 1: inlet NOx 619 / 482 ppm (mean / SD), temperature 534 / 48 K, flow
+    3.6 / 1.3 mol/s, tailpipe NOx 325 / 267 ppm; ours: about 524 / 507 ppm, 546 / 25 K, 4.6 / 2.6 mol/s, and
+    tailpipe NOx 248 / 260 ppm (production design) or 196 / 243 ppm (excitation design). The cold WHTC was not
+    used: the thesis' Figure 2 never shows the SCR inlet below about 450 K, and a cold window leaves the whole
+    warm-up in the estimation part and a hot, steady validation part. No WHTC window reaches the thesis'
+    temperature spread (SD 48 K) hot.
 
-    Dosing: feedforward at ANR :data:`PAPER4_BASE_ANR` = 0.5 (the thesis' mean conversion is about 50 %) times
-    ``1 + e`` with ``e`` the multi-level random steps of :data:`PAPER4_EXCITATION` (ANR 0 to 1, holds 4-60 s);
-    our urea dosing is lower on average than the thesis' (about 4 against 8.4 g/min): the simulated catalyst needs
-    no more for that conversion. Sensor noise on (it only enters through the feedforward and the NOx-sensor output).
-    Our catalyst stores the NH3 of this dosing without slip, so the ``nh3_slip_ppm`` output is near zero here.
+    Dosing (``design``, one of :data:`PAPER4_DESIGNS`): feedforward at ANR :data:`PAPER4_BASE_ANR` = 0.5 (the
+    thesis' mean conversion is about 50 %; ours 53 % under the production design), computed from the upstream NOx
+    sensor and the exhaust flow,
+
+    * ``"production"`` (default, the thesis' data): the feedforward alone, so the urea follows the NOx flow and is
+      near zero when the engine motors, as in the thesis' Figure 2. Our urea dosing is lower on average than the
+      thesis' (about 3 against 8.4 g/min): the simulated catalyst needs no more for that conversion;
+    * ``"excitation"`` (beyond the thesis; this function's only design until 2026-11-24): times ``1 + e`` with
+      ``e`` the multi-level random steps of :data:`PAPER4_EXCITATION` (ANR 0 to 1, holds 4-60 s), which makes the
+      urea independent of the NOx flow and drives the NH3 store through its range: more informative about the
+      urea's effect, and a much harder prediction problem over a 150 s validation window.
+
+    ``seed`` seeds the sensor noise (which enters through the feedforward and the NOx-sensor output) and the
+    excitation. Our catalyst stores the NH3 of either design without slip, so ``nh3_slip_ppm`` is near zero here.
     """
-    return excitation_dataset("whtc", seed=seed, dt=PAPER4_DT_S, base_anr=PAPER4_BASE_ANR,
-                              excitation=PAPER4_EXCITATION,
-                              start_s=PAPER4_SEGMENT_START_S, duration_s=PAPER4_N_SAMPLES * PAPER4_DT_S,
-                              cold_start=PAPER4_SEGMENT_COLD_START)
+    if design not in PAPER4_DESIGNS:
+        raise ValueError(f"unknown design {design!r}; choose from {sorted(PAPER4_DESIGNS)}")
+    d = PAPER4_DESIGNS[design]
+    ds = excitation_dataset("whtc", seed=seed, dt=PAPER4_DT_S, base_anr=d.base_anr, excitation=d.excitation,
+                            start_s=PAPER4_SEGMENT_START_S, duration_s=PAPER4_N_SAMPLES * PAPER4_DT_S,
+                            cold_start=PAPER4_SEGMENT_COLD_START)
+    ds.meta["design"] = design
+    return ds
 
 
 def synthetic_scr_dataset(seed: int = 0, n_samples: int = PAPER4_N_SAMPLES, dt: float = PAPER4_DT_S,

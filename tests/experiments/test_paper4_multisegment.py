@@ -77,8 +77,8 @@ def test_slip_is_studied_where_it_varies() -> None:
     assert all(np.isfinite(r["fit_validation"]) for r in entry["nh3_slip"])
     assert entry["nox"][0]["fit_validation"] != entry["nh3_slip"][0]["fit_validation"]
     assert entry["nh3_slip_sd_ppm"][0] > ms.SLIP_MIN_SD_PPM
-    # the Paper IV design stores all of its NH3 on the first WHTC segment: no slip study there
-    quiet = ms.load_segment("whtc", 100, 0.0, design="paper4")
+    # the excitation design stores all of its NH3 on the first WHTC segment: no slip study there
+    quiet = ms.load_segment("whtc", 100, 0.0, design="excitation")
     assert not ms.slip_varies(quiet)
     e2 = ms.study_segment(quiet, models=("M-I",), mimo_orders=(2,))
     assert isinstance(e2["nh3_slip"], str) and "not identifiable" in e2["nh3_slip"] and "mimo" not in e2

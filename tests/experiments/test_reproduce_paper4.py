@@ -70,6 +70,24 @@ def test_main_writes_the_table(tmp_path, monkeypatch) -> None:
     for r in res["rows"]:
         assert {"fit_estimation", "fit_validation", "fit_validation_x0_from_validation", "mse_validation"} <= set(r)
     assert res["protocol"]["n_estimation"] == 900 and "carried" in res["protocol"]["fit"]
+    # the table is the thesis' design; the excitation design's table follows it
+    assert res["design"] == "production" and res["data"]["design"] == "production"
+    assert res["other_design"]["design"] == "excitation"
+    assert [r["model"] for r in res["other_design"]["rows"]] == list(rp4.MODELS)
+    assert res["other_design"]["rows"][0]["fit_validation"] != res["rows"][0]["fit_validation"]
+
+
+def test_main_one_design(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(rp4, "MV_DEFAULT", {**rp4.MV_DEFAULT, "nk": (1,), "smoothness": (10.0,)})
+    out = tmp_path / "r.json"
+    assert rp4.main(["--no-plots", "--design", "excitation", "--only-design", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["design"] == "excitation" and res["data"]["design"] == "excitation" and "other_design" not in res
+    expected = rp4.fit_models(whtc_dataset(seed=0, design="excitation")[:PAPER4_N_SAMPLES], models=("M-II",))[0]
+    assert res["rows"][1]["fit_validation"] == pytest.approx(expected[0]["fit_validation"], abs=1e-9)
+    with pytest.raises(SystemExit):
+        rp4.main(["--design", "nope"])
 
 
 def test_diagnose_mv_scores_each_candidate_and_its_ceiling(data, fitted) -> None:
@@ -89,7 +107,8 @@ def test_seed_spread_collects_each_seeds_table(fitted) -> None:
     rows, _ = fitted
     spread = rp4.seed_spread([0, 1], models=("M-II",))
     m2 = spread["models"]["M-II"]
-    assert spread["seeds"] == [0, 1] and len(m2["fit_validation"]) == 2
+    assert spread["seeds"] == [0, 1] and len(m2["fit_validation"]) == 2 and spread["design"] == "production"
+    assert "mv_chosen" not in spread
     seed0 = next(r for r in rows if r["model"] == "M-II")
     assert m2["fit_validation"][0] == pytest.approx(seed0["fit_validation"], abs=1e-9)
     assert m2["min"] <= m2["median"] <= m2["max"]

@@ -6,6 +6,8 @@ import pytest
 
 from ident.excitation import GBN, RandomSteps
 from ident.plant_data import (
+    PAPER4_BASE_ANR,
+    PAPER4_DESIGNS,
     PAPER4_N_SAMPLES,
     SIM_INPUT_NAMES,
     SIM_OUTPUT_NAMES,
@@ -64,10 +66,46 @@ def test_bad_arguments() -> None:
         excitation_dataset(start_s=1790.0, duration_s=100.0)
 
 
-def test_whtc_dataset_is_paper4_sized_and_informative() -> None:
-    ds = whtc_dataset(seed=0)
-    assert ds.n_samples == PAPER4_N_SAMPLES and ds.dt == 0.5
+def _feedforward_urea_g_min(ds) -> np.ndarray:
+    """The production feedforward on the true inlet NOx flow, g/min urea."""
+    return np.array([feedforward_adblue_g_s(n, f, PAPER4_BASE_ANR) for n, f in zip(ds.u[:, 0], ds.u[:, 3])]
+                    ) * UREA_G_MIN_PER_ADBLUE_G_S
+
+
+@pytest.mark.parametrize("design", sorted(PAPER4_DESIGNS))
+def test_whtc_dataset_is_paper4_sized(design: str) -> None:
+    ds = whtc_dataset(seed=0, design=design)
+    assert ds.n_samples == PAPER4_N_SAMPLES and ds.dt == 0.5 and ds.meta["design"] == design
+    assert ds.meta["start_s"] == 350.0 and not ds.meta["env_kwargs"]["cold_start"]
     est, val = ds.split(index=900)
     for part in (est, val):  # the output varies in both parts
         assert part.y[:, 0].std() > 0.5 * ds.y[:, 0].std()
+    # the thesis' mean conversion is about 50 % (Paper III Table 1: 325 of 619 ppm left)
+    assert 0.35 < 1.0 - ds.y[:, 0].mean() / ds.u[:, 0].mean() < 0.75
+
+
+def test_production_design_doses_the_feedforward() -> None:
+    # the thesis' data: urea "related to the NOx input concentration and to the exhaust flow", zero when both are low
+    ds = whtc_dataset(seed=0, design="production")
+    ff = _feedforward_urea_g_min(ds)
+    urea = ds.u[:, 1]
+    assert np.corrcoef(ff, urea)[0, 1] > 0.9   # not 1: the feedforward reads the lagged, noisy upstream sensor
+    assert np.median(urea / np.maximum(ff, 1e-9)) == pytest.approx(1.0, abs=0.05)
+    assert np.mean(urea == 0) > 0.05 and urea.max() > 10.0
+    assert ds.meta["excitation"] == "none"
+
+
+def test_excitation_design_is_informative() -> None:
+    ds = whtc_dataset(seed=0, design="excitation")
     assert ds.u[:, 1].max() > 20.0 and np.mean(ds.u[:, 1] == 0) > 0.05  # dosing from none to > 20 g/min urea
+    # the ANR factor (1 + e) spreads over [0, 2], so the urea leaves the feedforward: an independent input
+    ff = _feedforward_urea_g_min(ds)
+    ratio = ds.u[ff > 1.0, 1] / ff[ff > 1.0]
+    assert np.quantile(ratio, 0.9) - np.quantile(ratio, 0.1) > 1.0
+    prod = whtc_dataset(seed=0, design="production")
+    np.testing.assert_array_equal(ds.u[:, [0, 2, 3]], prod.u[:, [0, 2, 3]])  # same engine-out conditions
+
+
+def test_unknown_design_is_refused() -> None:
+    with pytest.raises(ValueError, match="unknown design 'nope'"):
+        whtc_dataset(design="nope")
