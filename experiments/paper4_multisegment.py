@@ -5,16 +5,17 @@ Each segment is 600 s (1200 samples at 0.5 s) of a WHTC, WHSC or seeded random c
 hot start; :func:`segment_list`), open-loop feedforward dosing, perturbed by seeded random steps in two of the
 designs (one experiment per cycle and seed, the segment a slice of it). Dosing designs (``--design``):
 
-* ``production``: the thesis' data (:data:`ident.plant_data.PAPER4_DESIGNS`), the feedforward at ANR 0.5 alone,
-  as the reproduction's table (``reproduce_paper4``, default design since 2026-11-24);
-* ``excitation`` (default; called ``paper4`` until 2026-11-24, when it was the design of Paper IV's table): ANR 0.5 times
-  ``1 + e``, e random steps in [-1, 1] held 4-60 s (ANR 0 to 1). Our catalyst stores all the NH3 of this dosing,
-  so the slip is (almost) never identifiable under it;
+* ``production`` (default since 2026-11-24): the thesis' data (:data:`ident.plant_data.PAPER4_DESIGNS`), the
+  feedforward at ANR 0.5 alone, as the reproduction's table (``reproduce_paper4``);
+* ``excitation`` (the default, called ``paper4``, until 2026-11-24, when it was the design of Paper IV's table): ANR
+  0.5 times ``1 + e``, e random steps in [-1, 1] held 4-60 s (ANR 0 to 1). Our catalyst stores all the NH3 of this
+  dosing, so the slip is (almost) never identifiable under it;
 * ``slip``: ANR 1.0 times ``1 + e`` with the same steps (ANR 0 to 2): over-dosing phases that fill the store and
   let NH3 slip on the segments hot enough to release it, for the second-output study.
 
 ``excitation`` and ``slip`` were fixed before any fit; ``production`` was added on 2026-11-24 as the thesis' design
-(reasons in :func:`ident.plant_data.whtc_dataset`), after its Paper IV table had been seen.
+(reasons in :func:`ident.plant_data.whtc_dataset`), after its Paper IV table had been seen, and before this study
+was run under it.
 
 M-I..M-V exactly as :mod:`experiments.reproduce_paper4` (900/300 split, estimation statistics, M-V's candidate
 chosen on the last 25 % of the estimation data; validation FIT of the output simulated on from the estimation data).
@@ -43,7 +44,7 @@ estimation and the validation part):
 * a MIMO linear state-space model (M-I's estimator, simulation error) of order 2 and 4 fitted to NOx and slip
   jointly, scored per output against M-I fitted to each output alone: does one model of both do as well?
 
-    python -m experiments.paper4_multisegment [--json PATH] [--segments 4] [--design excitation|production|slip]
+    python -m experiments.paper4_multisegment [--json PATH] [--segments 4] [--design production|excitation|slip]
 """
 from __future__ import annotations
 
@@ -67,6 +68,7 @@ from ident.excitation import RandomSteps
 from ident.linear import StateSpacePEM
 from ident.metrics import fit_percent
 from ident.plant_data import (
+    PAPER4_DEFAULT_DESIGN,
     PAPER4_DESIGNS,
     PAPER4_DT_S,
     PAPER4_N_ESTIMATION,
@@ -108,7 +110,7 @@ def segment_list(n: int) -> list[tuple[str, int, float]]:
     return out[:n]
 
 
-def load_segment(cycle: str, seed: int, start_s: float, design: str = "excitation") -> IODataset:
+def load_segment(cycle: str, seed: int, start_s: float, design: str = PAPER4_DEFAULT_DESIGN) -> IODataset:
     """One segment's record (inputs and the three outputs of :mod:`ident.plant_data`) under a dosing design."""
     if design not in DESIGNS:
         raise ValueError(f"unknown design {design!r}; choose from {sorted(DESIGNS)}")
@@ -207,9 +209,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", help="write the results to this JSON file")
     ap.add_argument("--segments", type=int, default=4,
                     help="number of segments (default 4, about 1-2 min; 15 for the full run)")
-    ap.add_argument("--design", choices=sorted(DESIGNS), default="excitation",
-                    help="dosing design (module docstring): excitation (default: random ANR steps), production (the "
-                         "thesis' feedforward alone) or slip (over-dosing phases)")
+    ap.add_argument("--design", choices=sorted(DESIGNS), default=PAPER4_DEFAULT_DESIGN,
+                    help="dosing design (module docstring): production (default: the thesis' feedforward alone), "
+                         "excitation (random ANR steps) or slip (over-dosing phases)")
     args = ap.parse_args(argv)
     if args.segments < 2:
         ap.error("--segments must be at least 2 (the conclusions are paired tests over segments)")

@@ -11,9 +11,11 @@ Protocol (Paper III, ALGORITHMS.md sections 1 and 3)
   0.65). Paper IV's excitation design (:data:`ident.plant_data.PAPER4_EXCITATION`, ANR 0 to 1) empties and refills
   the NH3 store, a slow state the 2-state chain (x1 = y, x2 = y') cannot hold; the thesis' data came from production
   dosing, which keeps the catalyst in one storage regime. The milder design keeps that regime and still makes the
-  urea input independent of the NOx flow. The validation figures on Paper IV's two designs of
-  :data:`ident.plant_data.PAPER4_DESIGNS` are reported too: ``paper4_design`` (the excitation design) and
-  ``production_design`` (the thesis' feedforward dosing without excitation, Paper IV's table since 2026-11-24).
+  urea input independent of the NOx flow. The figures on the records of Paper IV's two designs
+  (:data:`ident.plant_data.PAPER4_DESIGNS`) are reported too: ``paper4_excitation_design`` (called
+  ``paper4_design`` until 2026-11-24) and ``paper4_production_design`` (the thesis' feedforward dosing without
+  excitation, the design of Paper IV's table since 2026-11-24). This table keeps its own design: its RPEM figures
+  already pass the thesis' on it, and the production record's are printed beside them.
   This choice was made after trying both designs (and a few others) on this segment; the multi-segment repetition
   below, on windows, cycles and seeds that played no part in it, is the check that it is not a lucky pick.
 * Time alignment: a record's output ``y[k]`` is sampled at the *end* of control step k (``(k + 1) dt``), after
@@ -95,6 +97,11 @@ EXTRA_TERMS = ("u1*u3", "u1*u2", "u1*u4", "x1*u3", "x1*u4", "x2*u4", "u2*u3", "x
 REPETITION_CYCLES = (("whtc", 1), ("whsc", 2), ("random", 3), ("random", 4), ("random", 5), ("random", 6))
 #: Tolerance of the operating-range rule of :func:`find_segments`, kelvin.
 RANGE_TOLERANCE_K = 5.0
+
+
+def _brief(row: dict[str, Any]) -> dict[str, Any]:
+    """A method's row without its parameters and simulations."""
+    return {k: row[k] for k in ("method", "n_params", "fit_estimation", "fit_validation", "passes")}
 
 
 def load_segment(cycle: str = "whtc", seed: int = 0, start_s: float = PAPER4_SEGMENT_START_S,
@@ -350,12 +357,8 @@ def main(argv: list[str] | None = None) -> int:
         "rows": [{k: v for k, v in r.items() if k not in ("theta", "theta_kalman_init")} for r in rows],
         "models": {r["method"]: {"terms": r["terms"], "theta": r["theta"], "theta_kalman_init": r["theta_kalman_init"]}
                    for r in rows},
-        "paper4_design": {"excitation": repr(PAPER4_EXCITATION),
-                          "rows": [{k: r[k] for k in ("method", "n_params", "fit_estimation", "fit_validation",
-                                                      "passes")} for r in rows4]},
-        "production_design": {"excitation": "none (feedforward alone)",
-                              "rows": [{k: r[k] for k in ("method", "n_params", "fit_estimation", "fit_validation",
-                                                          "passes")} for r in rows_p]},
+        "paper4_excitation_design": {"excitation": repr(PAPER4_EXCITATION), "rows": [_brief(r) for r in rows4]},
+        "paper4_production_design": {"excitation": "none (feedforward alone)", "rows": [_brief(r) for r in rows_p]},
         "data": {**seg["meta"], "n_estimation": n_est, "n_validation": n - n_est, "output": "tailpipe_nox_ppm",
                  "inputs": ["inlet_nox_ppm", "urea_dosing_g_min", "exp(-a/inlet_temperature_k), a = 1e4 K",
                             "exhaust_flow_mol_s"],
@@ -373,7 +376,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"data: {seg['meta']['cycle']} {seg['meta']['start_s']:g} s + {n * PAPER4_DT_S:g} s, seed {args.seed}, "
           f"{n_est}/{n - n_est} samples, ANR {PAPER4_BASE_ANR} x (1 + {EXCITATION!r}), aligned {align}")
     print(f"{'method':20s} {'params':>6s} | {'FIT est':>8s} {'FIT val':>8s} | {'paper est':>9s} {'paper val':>9s} "
-          f"| {'val, Paper IV excitation / production design':>44s}")
+          f"| {'val on Paper IV excitation / production':>40s}")
     for r, r4, rp in zip(rows, rows4, rows_p):
         print(f"{r['method']:20s} {r['n_params']:6d} | {r['fit_estimation']:7.2f}% {r['fit_validation']:7.2f}% | "
               f"{r['published_fit_estimation']:8.2f}% {r['published_fit_validation']:8.2f}% | "

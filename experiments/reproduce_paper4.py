@@ -16,10 +16,14 @@ the truck's feedforward dosing (ANR 0.5 times the upstream NOx flow) and no exci
 simulator was driven by signals measured on an engine running the WHTC, the urea dosing among them (Paper III
 section 2; Paper IV section 2.2: urea "related to the NOx input concentration and to the exhaust flow", zero at low
 flow or NOx). The ``excitation`` design's table follows it (random ANR steps 0 to 1; beyond the thesis, and until
-2026-11-24 the table's design). The segment, the base ANR, the models and M-V's selection rule are the same for
-both and were fixed before any fit; the production design was adopted on 2026-11-24, after the excitation design's
-table (M-V 54.2 %) had been seen, as the one design faithful to the thesis' data; no other design was tried for the
-table.
+2026-11-24 the table's design). History, for honesty: the segment and the base ANR were fixed before any fit; M-V's
+estimation options and selection rule were revised after the excitation design's earlier tables (the first
+reproduction's M-V is :data:`MV_PLAIN`; the rule with the thesis' nk = 1 alone gave 36.4 % carried on; adding nk = 0,
+compared on development segments, gave the rule below and 54.2 %). On 2026-11-24, after those tables fell short
+of the thesis' 68.05 %, the production design was tried as the one design faithful to the thesis' data, with the
+models and the rule unchanged, and adopted; no other design was tried for the table. The nk = 0 candidates are
+ours, not the thesis': with the thesis' nk = 1 alone M-V stays below 68.05 % on this record (every nk = 1 candidate
+scores 61.3-67.9 % on seed 0).
 
 =====  ==========================================================================================================
 M-I    StateSpacePEM, order 2, simulation-error criterion
@@ -53,9 +57,10 @@ Production design (the thesis' data): M-V 79.2 % FIT on the estimation data and 
 (thesis: 78.64 and 68.05 %); M-I 66.5 %, M-II 67.9 %, M-III 70.3 %, M-IV 67.4 % (thesis: 40.3, 38.9, 55.7, 61.0 %).
 Our linear models do far better than the thesis' on this segment: with the feedforward the urea follows the NOx
 flow, the hot catalyst's conversion stays within a narrow band, and the tailpipe NOx is nearly a scaled, lagged copy
-of the inlet NOx. Seed 0 is one draw of the sensor noise that enters through the feedforward: over seeds 0-9
-(``--spread-seeds``) M-V's validation FIT has median 69.4 % (66.9 to 79.2 %), 6 of 10 seeds at or above 68.05 %. The
-spread is M-V's delay choice: the hold-out picks nk = 0 on 4 seeds (72.9-79.2 %) and nk = 1 on 6 (66.9-70.0 %);
+of the inlet NOx. Seed 0 (the sensor noise that enters through the feedforward) is a favourable draw, 3rd of 10: over
+seeds 0-9 (``--spread-seeds``) M-V's validation FIT has median 69.4 % (66.9 to 79.2 %), 6 of 10 seeds at or above
+68.05 %, and M-V beats the better linear model by a median 1.9 points (-1.2 to 11.5; 10.4 on seed 0). The spread is
+M-V's delay choice: the hold-out picks nk = 0 on 4 seeds (72.9-79.2 %) and nk = 1 on 6 (66.9-70.0 %);
 ``--diagnose`` shows the same on seed 0 (every nk = 0 candidate 76.6-79.7 % bar the unpenalised one, 37.5 %; every
 nk = 1 candidate 61.3-67.9 %). The linear models hardly move between seeds (M-I 66.4-66.8 %, M-II 67.4-68.8 %).
 Whether the thesis' conclusions hold beyond this segment under the production design is
@@ -385,13 +390,13 @@ def main(argv: list[str] | None = None) -> int:
           "validation output used); val x0*: the validation record simulated alone from an x(0) estimated on its own "
           "measured output (MATLAB compare)")
     if not args.only_design:
-        other = next(d for d in PAPER4_DESIGNS if d != args.design)
-        ds_other = whtc_dataset(seed=args.seed, design=other)[:PAPER4_N_SAMPLES]
-        rows_other, _ = fit_models(ds_other)
-        result["other_design"] = {"design": other, "description": PAPER4_DESIGNS[other].description,
-                                  "rows": rows_other}
-        print("\nthe same segment and models, " + _data_line(ds_other, other))
-        print_table(rows_other)
+        result["other_designs"] = {}
+        for other in (d for d in PAPER4_DESIGNS if d != args.design):
+            ds_other = whtc_dataset(seed=args.seed, design=other)[:PAPER4_N_SAMPLES]
+            rows_other, _ = fit_models(ds_other)
+            result["other_designs"][other] = {"description": PAPER4_DESIGNS[other].description, "rows": rows_other}
+            print("\nthe same segment and models, " + _data_line(ds_other, other))
+            print_table(rows_other)
     if args.diagnose:
         diag = diagnose_mv(ds)
         result["mv_diagnostics"] = diag
@@ -417,7 +422,8 @@ def main(argv: list[str] | None = None) -> int:
     write_json(out / "results.json", result)
     if args.json:
         write_json(args.json, result)
-    finite = all(np.isfinite(r["fit_validation"]) for r in rows + result.get("other_design", {}).get("rows", []))
+    others = [r for d in result.get("other_designs", {}).values() for r in d["rows"]]
+    finite = all(np.isfinite(r["fit_validation"]) for r in rows + others)
     return 0 if finite else 1
 
 

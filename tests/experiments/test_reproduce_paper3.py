@@ -21,7 +21,7 @@ def test_smoke_run_writes_the_table(tmp_path, monkeypatch):
         assert r["published_fit_validation"] == rp3.PUBLISHED[r["method"]]
     assert res["data"]["n_estimation"] == 90 and res["data"]["n_validation"] == 30
     assert res["data"]["align"] is True
-    assert len(res["paper4_design"]["rows"]) == 4 and len(res["production_design"]["rows"]) == 4
+    assert len(res["paper4_excitation_design"]["rows"]) == 4 and len(res["paper4_production_design"]["rows"]) == 4
     sel = res["selection"]
     assert sel["method"] == "midpoint_selected" and set(sel["terms"]) <= set(sel["candidates"])
     rep = res["repetition"]

@@ -72,9 +72,10 @@ def test_main_writes_the_table(tmp_path, monkeypatch) -> None:
     assert res["protocol"]["n_estimation"] == 900 and "carried" in res["protocol"]["fit"]
     # the table is the thesis' design; the excitation design's table follows it
     assert res["design"] == "production" and res["data"]["design"] == "production"
-    assert res["other_design"]["design"] == "excitation"
-    assert [r["model"] for r in res["other_design"]["rows"]] == list(rp4.MODELS)
-    assert res["other_design"]["rows"][0]["fit_validation"] != res["rows"][0]["fit_validation"]
+    assert list(res["other_designs"]) == ["excitation"]
+    other = res["other_designs"]["excitation"]["rows"]
+    assert [r["model"] for r in other] == list(rp4.MODELS)
+    assert other[0]["fit_validation"] != res["rows"][0]["fit_validation"]
 
 
 def test_main_one_design(tmp_path, monkeypatch) -> None:
@@ -83,7 +84,7 @@ def test_main_one_design(tmp_path, monkeypatch) -> None:
     out = tmp_path / "r.json"
     assert rp4.main(["--no-plots", "--design", "excitation", "--only-design", "--json", str(out)]) == 0
     res = json.loads(out.read_text())
-    assert res["design"] == "excitation" and res["data"]["design"] == "excitation" and "other_design" not in res
+    assert res["design"] == "excitation" and res["data"]["design"] == "excitation" and "other_designs" not in res
     expected = rp4.fit_models(whtc_dataset(seed=0, design="excitation")[:PAPER4_N_SAMPLES], models=("M-II",))[0]
     assert res["rows"][1]["fit_validation"] == pytest.approx(expected[0]["fit_validation"], abs=1e-9)
     with pytest.raises(SystemExit):

@@ -1,3 +1,6 @@
+import copy
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -9,9 +12,11 @@ from ident.linear import ARX, OutputError
 from ident.metrics import compare
 from ident.multiple_model import (
     MAX_LOCAL_POLE,
+    STABLE_START_POLE,
     MultipleModel,
     local_pole_magnitudes,
     quantile_edges,
+    stabilise_local_denominators,
     validity_functions,
 )
 
@@ -115,6 +120,21 @@ def test_local_pole_magnitudes():
     # z^2 - 1.5 z + 0.56 = (z - 0.7)(z - 0.8); z^2 + 0.25 = poles at +-0.5j
     np.testing.assert_allclose(local_pole_magnitudes(np.array([[-1.5, 0.56], [0.0, 0.25]])), [0.8, 0.5])
     assert local_pole_magnitudes(np.zeros((3, 0))).tolist() == [0.0, 0.0, 0.0]
+    assert local_pole_magnitudes(np.array([[np.nan, 0.1]])).tolist() == [np.inf]
+
+
+def test_stabilise_local_denominators():
+    # (z - 0.5)(z - 1.2) and a conjugate pair of magnitude 1.1; a stable row stays as it is
+    unstable = np.array([[-1.7, 0.6], [0.0, 1.21], [-1.5, 0.56]])
+    out = stabilise_local_denominators(unstable)
+    np.testing.assert_allclose(np.sort(np.abs(np.roots([1.0, *out[0]]))), [0.5, STABLE_START_POLE])
+    np.testing.assert_allclose(np.abs(np.roots([1.0, *out[1]])), [STABLE_START_POLE] * 2)
+    np.testing.assert_array_equal(out[2], unstable[2])
+    assert np.all(local_pole_magnitudes(out) < MAX_LOCAL_POLE)
+    with pytest.raises(ValueError, match="max_pole"):
+        stabilise_local_denominators(unstable, max_pole=1.0)
+    with pytest.raises(ValueError, match="finite"):
+        stabilise_local_denominators(np.array([[np.inf, 0.0]]))
 
 
 def test_oe_refinement_keeps_every_local_model_stable():
@@ -124,7 +144,7 @@ def test_oe_refinement_keeps_every_local_model_stable():
     from ident.plant_data import whtc_dataset
     from ident.preprocessing import normalize_split
 
-    split = normalize_split(*whtc_dataset(seed=0).select(outputs=[0]).split(index=900))
+    split = normalize_split(*whtc_dataset(seed=0, design="production").select(outputs=[0]).split(index=900))
     est, val = split.estimation, split.validation
     mm = models(est)["MM-OE"].fit(est.u, est.y)
     assert np.all(local_pole_magnitudes(mm.theta_[:, :mm.na]) < MAX_LOCAL_POLE)
@@ -132,3 +152,29 @@ def test_oe_refinement_keeps_every_local_model_stable():
     assert np.max(np.abs(y_hat)) < 10 * np.max(np.abs(val.y))
     arx = models(est)["MM-ARX"].fit(est.u, est.y)
     assert compare(mm, est).fit > compare(arx, est).fit   # the refinement still improves on its ARX start
+    # an unstable start (one region's pole moved to 1.05) is pulled inside, and the refinement ends stable and no
+    # worse than that stabilised start
+    mm.theta_[2, :2] = [-1.05 - 0.3, 1.05 * 0.3]
+    start = copy.deepcopy(mm)
+    start.theta_[:, :2] = stabilise_local_denominators(start.theta_[:, :2])
+    mm._refine_oe(est.u, est.y[:, 0])
+    assert np.all(local_pole_magnitudes(mm.theta_[:, :mm.na]) < MAX_LOCAL_POLE)
+    assert compare(mm, est).fit >= compare(start, est).fit
+
+
+def test_oe_refinement_that_cannot_improve_keeps_its_start_and_warns(monkeypatch):
+    import ident.multiple_model as mm_module
+
+    u, y = scheduled_system(n=300)
+    edges = [quantile_edges(u[:, 1], 2)]
+    arx = MultipleModel([1], edges, local="arx", na=1, nb=1).fit(u, y)
+
+    def unstable_optimum(fun, x0, **kwargs):   # a solver that ends on an unstable point
+        x = np.array(x0, dtype=float)
+        x[0] = -1.5    # a_1 of region 0: pole at 1.5
+        return SimpleNamespace(x=x)
+
+    monkeypatch.setattr(mm_module, "least_squares", unstable_optimum)
+    with pytest.warns(RuntimeWarning, match="did not improve"):
+        oe = MultipleModel([1], edges, local="oe", na=1, nb=1).fit(u, y)
+    np.testing.assert_array_equal(oe.theta_, arx.theta_)   # the (stable) ARX start

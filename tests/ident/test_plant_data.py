@@ -109,3 +109,5 @@ def test_excitation_design_is_informative() -> None:
 def test_unknown_design_is_refused() -> None:
     with pytest.raises(ValueError, match="unknown design 'nope'"):
         whtc_dataset(design="nope")
+    with pytest.raises(ValueError, match="unknown design"):
+        whtc_dataset(design=["production"])  # type: ignore[arg-type]
