@@ -24,7 +24,7 @@ of regions that the estimation data visit briefly unstable, the blend staying bo
 diverging where those regions dominate (seen on Paper IV's WHTC segment: two local poles at 1.21 and 1.31, validation
 FIT -76919 %). The bound can be active: on that record one local pole ends at 0.999 (a time constant of about 500 s
 at 0.5 s, the data asking for a near-integrating mode), and on the same segment's excitation record the constrained
-fit validates at 26.5 % against 29.4 % unconstrained. An unstable ARX start is first pulled inside
+fit validates at 26.5 % against 29.3 % unconstrained. An unstable ARX start is first pulled inside
 (:func:`stabilise_local_denominators`), so the refinement starts feasible. Local stability does not prove the
 blend's (switching between stable models can diverge). The refinement keeps its (stabilised) ARX start, with a
 ``RuntimeWarning``, if it cannot improve on it.
