@@ -67,8 +67,8 @@ from ident.plant_data import (
     PAPER3_TABLE1_MEAN,
     PAPER3_TABLE1_SD,
     PAPER4_BASE_ANR,
+    PAPER4_DESIGNS,
     PAPER4_DT_S,
-    PAPER4_EXCITATION,
     PAPER4_N_SAMPLES,
     PAPER4_SEGMENT_START_S,
     SIM_INPUT_NAMES,
@@ -102,6 +102,11 @@ RANGE_TOLERANCE_K = 5.0
 def _brief(row: dict[str, Any]) -> dict[str, Any]:
     """A method's row without its parameters and simulations."""
     return {k: row[k] for k in ("method", "n_params", "fit_estimation", "fit_validation", "passes")}
+
+
+def _excitation_text(design: str) -> str:
+    exc = PAPER4_DESIGNS[design].excitation
+    return repr(exc) if exc is not None else "none (feedforward alone)"
 
 
 def load_segment(cycle: str = "whtc", seed: int = 0, start_s: float = PAPER4_SEGMENT_START_S,
@@ -348,17 +353,20 @@ def main(argv: list[str] | None = None) -> int:
     seg = load_segment("whtc", args.seed, PAPER4_SEGMENT_START_S, n, align=align)
     d = normalise(seg["u"], seg["y"], n_est)
     rows, sims = fit_methods(d, passes)
-    seg4 = load_segment("whtc", args.seed, PAPER4_SEGMENT_START_S, n, excitation=PAPER4_EXCITATION, align=align)
-    rows4, _ = fit_methods(normalise(seg4["u"], seg4["y"], n_est), passes)
-    seg_p = load_segment("whtc", args.seed, PAPER4_SEGMENT_START_S, n, excitation=None, align=align)
-    rows_p, _ = fit_methods(normalise(seg_p["u"], seg_p["y"], n_est), passes)
+    paper4 = {}   # the methods on the records of Paper IV's designs (ident.plant_data.PAPER4_DESIGNS)
+    for name in ("excitation", "production"):
+        design = PAPER4_DESIGNS[name]
+        seg_d = load_segment("whtc", args.seed, PAPER4_SEGMENT_START_S, n, excitation=design.excitation,
+                             base_anr=design.base_anr, align=align)
+        paper4[name] = fit_methods(normalise(seg_d["u"], seg_d["y"], n_est), passes)[0]
+    rows4, rows_p = paper4["excitation"], paper4["production"]
     out = run_folder("reproduce_paper3")
     result: dict[str, Any] = {
         "rows": [{k: v for k, v in r.items() if k not in ("theta", "theta_kalman_init")} for r in rows],
         "models": {r["method"]: {"terms": r["terms"], "theta": r["theta"], "theta_kalman_init": r["theta_kalman_init"]}
                    for r in rows},
-        "paper4_excitation_design": {"excitation": repr(PAPER4_EXCITATION), "rows": [_brief(r) for r in rows4]},
-        "paper4_production_design": {"excitation": "none (feedforward alone)", "rows": [_brief(r) for r in rows_p]},
+        **{f"paper4_{name}_design": {"excitation": _excitation_text(name), "rows": [_brief(r) for r in rows_d]}
+           for name, rows_d in paper4.items()},
         "data": {**seg["meta"], "n_estimation": n_est, "n_validation": n - n_est, "output": "tailpipe_nox_ppm",
                  "inputs": ["inlet_nox_ppm", "urea_dosing_g_min", "exp(-a/inlet_temperature_k), a = 1e4 K",
                             "exhaust_flow_mol_s"],

@@ -287,7 +287,7 @@ class MultipleModel:
             return np.nan_to_num(-J)
 
         start = self.theta_.copy()
-        start[:, :na] = stabilise_local_denominators(start[:, :na]) if na else start[:, :na]
+        start[:, :na] = stabilise_local_denominators(start[:, :na])
         th0 = start.ravel()
         c0 = float(np.mean(resid(th0) ** 2))
         res = least_squares(resid, th0, jac=jac, method="trf", x_scale="jac", max_nfev=self.max_nfev)
