@@ -6,7 +6,8 @@
 * :mod:`control.baselines` -- :class:`LookupTableDosing`, :class:`FeedforwardPI`.
 * :mod:`control.estimation` -- :class:`ExtendedKalmanFilter` on any CasADi step function.
 * :mod:`control.mpc` -- :class:`NonlinearMPC`; :mod:`control.models` -- :class:`FirstPrinciplesModel` (oracle),
-  :class:`IdentifiedModelAdapter`; :mod:`control.identified` -- :class:`StorageGreyBox` (identified model).
+  :class:`IdentifiedModelAdapter` (the identified models themselves, the grey-box
+  :class:`ident.greybox.StorageGreyBox` among them, live in :mod:`ident`).
 * :mod:`control.rl` -- reinforcement learning (separate owner).
 
 Heavy modules (CasADi) are imported lazily: ``from control.mpc import NonlinearMPC``.

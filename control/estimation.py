@@ -39,7 +39,7 @@ class ExtendedKalmanFilter:
 
     Signals of :meth:`step` / :meth:`correct` / :meth:`propagate` (units: those of ``step``, which the filter does
     not know -- for :class:`control.models.IdentifiedModelAdapter` the identification data normalised as
-    ``(x - mean) / scale``; with mean 0 and scale 1, as for :class:`control.identified.StorageGreyBox`, physical:
+    ``(x - mean) / scale``; with mean 0 and scale 1, as for :class:`ident.greybox.StorageGreyBox`, physical:
     u = [inlet NOx ppm, urea g/min, inlet temperature K, exhaust flow mol/s], y = [tailpipe NOx ppm, NH3 ppm,
     NOx sensor ppm])
 

@@ -255,10 +255,10 @@ class IdentifiedModelAdapter:
     model_dt : sample time of the model [s]; a stage of the MPC is round(h / model_dt) model steps.
     terminal_cost : optional ``f(x) -> SX`` terminal cost of the MPC.
     stage_model : optional second export of the same identified model discretised at the MPC's stage length
-        (continuous-time parameters, e.g. :meth:`control.identified.StorageGreyBox.from_params` with ``dt = h``):
+        (continuous-time parameters, e.g. :meth:`ident.greybox.StorageGreyBox.from_params` with ``dt = h``):
         one step per stage keeps the NLP small; the EKF still runs ``model`` at the data's sample time.
     implicit_stage : optional ``f(x_next, x, u, h) -> (residual, y)``, the model over a stage as implicit
-        equations in the NLP's end state (e.g. :meth:`control.identified.StorageGreyBox.implicit_stage`, on the
+        equations in the NLP's end state (e.g. :meth:`ident.greybox.StorageGreyBox.implicit_stage`, on the
         normalised inputs); used instead of ``stage_model`` / ``model`` in the NLP when given: an implicit stage
         needs no clipping and keeps the NLP smooth. Its ``y`` holds the outputs named by ``output_indices``.
     """

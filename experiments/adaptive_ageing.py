@@ -3,7 +3,7 @@
     python -m experiments.adaptive_ageing [--json PATH] [--quick] [--cycles N] [--cycle whtc|whsc|alternate]
                                           [--end-storage-retention R] [--end-activity-retention R] [--ident PATH]
 
-Scenario. The grey-box storage model (:class:`control.identified.StorageGreyBox`) is identified once on the fresh
+Scenario. The grey-box storage model (:class:`ident.greybox.StorageGreyBox`) is identified once on the fresh
 catalyst (:func:`experiments.control_benchmark.identify`). The plant then ages over a sequence of ``n`` hot cycles
 (default 6 WHTCs) with the ageing severity rising linearly from 0 to 1 (:func:`scr_env.params.aged`: the end of
 life keeps 60 % of the NH3 storage capacity and 50 % of the SCR/oxidation activity). ``--end-storage-retention`` /
@@ -66,7 +66,7 @@ def drift_step(ident: dict[str, Any], dt: float | None = None) -> ca.Function:
     """``Function('step_d', [x, u, d], [x_next, y])`` of the identified grey-box with the drift d = (d_cap, d_act)
     (log retentions of the storage capacity and of the SCR and oxidation activity); y = [NOx ppm, NH3 ppm,
     sensor ppm = a NOx + b NH3]."""
-    from control.identified import N_PARAMS, StorageGreyBox
+    from ident.greybox import N_PARAMS, StorageGreyBox
 
     m = StorageGreyBox(n_cells=int(ident["n_cells"]), dt=float(ident["dt"] if dt is None else dt))
     n = m.n_cells

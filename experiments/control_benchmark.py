@@ -93,7 +93,7 @@ def identify(seeds: tuple[int, ...] = IDENT_SEEDS,
              excitation: tuple[float, float, float, float] = IDENT_EXCITATION) -> dict[str, Any]:
     """Identify the grey-box storage model from open-loop excitation data (random cycles of ``seeds``, ANR
     excitation ``RandomSteps(*excitation)``); return its numbers."""
-    from control.identified import StorageGreyBox
+    from ident.greybox import StorageGreyBox
     from ident.excitation import RandomSteps
     from ident.metrics import fit_percent
     from ident.plant_data import excitation_dataset
@@ -138,7 +138,7 @@ def identified_mpc(ident: dict[str, Any], quick: bool = False,
     :class:`~control.mpc.NonlinearMPC`)."""
     import casadi as ca
 
-    from control.identified import StorageGreyBox
+    from ident.greybox import StorageGreyBox
     from control.models import IdentifiedModelAdapter
     from control.mpc import NonlinearMPC
 

@@ -3,6 +3,7 @@ multiple-model identification; RPEM and Hammerstein-Wiener models in their own s
 from ident.base import DynamicModel, NotFittedError
 from ident.dataset import IODataset
 from ident.excitation import GBN, PRBS, Multisine, RandomSteps, generate_multichannel
+from ident.greybox import StorageGreyBox
 from ident.io import load_model, register_model, save_model
 from ident.linear import ARX, N4SID, OutputError, StateSpaceModel, StateSpacePEM
 from ident.metrics import Comparison, compare, fit_percent, mse, nrmse, rms
@@ -27,6 +28,7 @@ __all__ = [
     "RecursivePEM",
     "StateSpaceModel",
     "StateSpacePEM",
+    "StorageGreyBox",
     "arrhenius_transform",
     "compare",
     "finite_difference",

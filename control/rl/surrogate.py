@@ -365,7 +365,7 @@ def fit_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str = "mm-a
     ``1 + e``, e random steps in [-1, 1] held 4-60 s), concatenated, normalised with their own statistics;
     inputs (inlet NOx, urea g/min, inlet temperature, flow), outputs (tailpipe NOx, NH3 slip). ``kind``: "arx",
     "mm-arx" (local ARX models blended over 2 x 2 regions of temperature and flow, :mod:`ident.multiple_model`) or
-    "greybox" (:class:`control.identified.StorageGreyBox`, physical signals, its own excitation at ANR 1).
+    "greybox" (:class:`ident.greybox.StorageGreyBox`, physical signals, its own excitation at ANR 1).
     Returns the surrogate and a description with the one-step and simulation fit on a further random cycle.
     """
     from ident.dataset import IODataset
@@ -388,9 +388,9 @@ def fit_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str = "mm-a
     val_n = IODataset(u=nu.transform(val.u), y=ny.transform(val.y), dt=val.dt, input_names=val.input_names,
                       output_names=val.output_names)
     if kind == "greybox":
-        # the control-oriented storage model of control.identified, fitted on its own excitation design (physical
+        # the control-oriented storage model of ident.greybox, fitted on its own excitation design (physical
         # signals, no normalisers): a model of the structure the linear ones lack
-        from control.identified import StorageGreyBox
+        from ident.greybox import StorageGreyBox
 
         exc_gb = RandomSteps(-0.9, 0.7, 10.0, 120.0)
         recs = [excitation_dataset("random", seed=s, base_anr=1.0, excitation=exc_gb) for s in seeds]

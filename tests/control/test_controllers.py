@@ -5,7 +5,7 @@ import pytest
 
 from control.baselines import FeedforwardPI, LookupTableDosing
 from control.evaluation import evaluate
-from control.identified import StorageGreyBox
+from ident.greybox import StorageGreyBox
 from control.models import FirstPrinciplesModel, IdentifiedModelAdapter
 from control.mpc import NonlinearMPC
 from control.protocol import PolicyPredictor, action_to_rate

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from control.estimation import ExtendedKalmanFilter
-from control.identified import StorageGreyBox
+from ident.greybox import StorageGreyBox
 from ident.linear.statespace import StateSpaceModel
 
 

@@ -13,7 +13,7 @@ IDENT = {"params": [-0.0803, -0.2129, 0.2140, -0.1841, 0.1300, 0.9155, -0.0592, 
 
 
 def test_drift_step_is_the_identified_model_at_zero_drift_and_loses_capacity() -> None:
-    from control.identified import StorageGreyBox
+    from ident.greybox import StorageGreyBox
 
     fixed = StorageGreyBox.from_params(IDENT["params"], IDENT["sensor_gains"]).to_casadi()
     f = aa.drift_step(IDENT)

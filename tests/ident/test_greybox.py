@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from control.evaluation import evaluate
-from control.identified import StorageGreyBox
+from ident.greybox import StorageGreyBox
 from control.models import IdentifiedModelAdapter
 from control.mpc import NonlinearMPC
 
@@ -150,7 +150,7 @@ def test_fit_rejects_bad_data_at_entry_and_keeps_a_fitted_model():
 def test_a_fit_failing_midway_leaves_the_model_as_it_was(monkeypatch):
     """The review's case: the optimisation ran, the sensor-gain step failed, params_ was overwritten but
     sensor_gains_ stale. Now both or neither."""
-    import control.identified as ci
+    import ident.greybox as ci
 
     m = _fitted()
     state = _fitted_state(m)
