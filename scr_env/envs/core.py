@@ -17,6 +17,7 @@ import numpy as np
 
 from scr_env.constants import NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
 from scr_env.cycles import ExhaustTrace
+from scr_env.params import PACKED_FIELDS
 from scr_env.physics import kernel as K
 
 # columns of the per-step drive table built from an ExhaustTrace (kernel inputs plus engine power)
@@ -29,6 +30,7 @@ REWARD_TERMS = ("nox_cost", "nh3_cost", "adblue_cost")
 (A_ENGINE_NOX_G, A_TAILPIPE_NOX_G, A_NH3_PPM_S, A_NH3_PEAK_PPM, A_ADBLUE_G, A_TIME_S, A_WORK_KWH, A_N_IN_MOL,
  A_N_OUT_MOL, A_STORED0_MOL, A_NH3_G, A_N2O_G, A_UREA_N_MOL, A_STEPS) = range(14)
 N_ACC = 14
+N_CAT_PARAMS = len(PACKED_FIELDS)  # packed catalyst parameters per plant (scr_env.params.pack)
 
 # observation layout
 OBS_BASE = ("upstream_nox_ppm", "inlet_temperature_k", "exhaust_flow_mol_s", "tailpipe_nox_sensor_ppm",
@@ -124,7 +126,7 @@ def _blocks(buf, lay):
     """The column blocks of the buffer, as (B, width) views (free without reference counting)."""
     n = lay[0]
     return (buf[:, lay[1]:lay[1] + n], buf[:, lay[2]:lay[2] + n], buf[:, lay[3]:lay[3] + K.N_SENSOR_STATES],
-            buf[:, lay[4]:lay[4] + 6], buf[:, lay[5]], buf[:, lay[6]:lay[6] + 25], buf[:, lay[7]:lay[7] + K.N_AUX],
+            buf[:, lay[4]:lay[4] + 6], buf[:, lay[5]], buf[:, lay[6]:lay[6] + N_CAT_PARAMS], buf[:, lay[7]:lay[7] + K.N_AUX],
             buf[:, lay[8]:lay[8] + K.N_NOISE], buf[:, lay[9]:lay[9] + 15], buf[:, lay[10]],
             buf[:, lay[11]:lay[11] + 3], buf[:, lay[12]:lay[12] + 3], buf[:, lay[13]], buf[:, lay[14]:lay[14] + N_ACC])
 
@@ -265,7 +267,7 @@ def vector_step_parallel(actions, normalized, max_rate_g_s, buf, lay, obs, drive
 
 # column blocks of the PlantBatch buffer: (name, width or None for n_cells)
 _BLOCKS = (("theta", None), ("temperature_k", None), ("sensor_state", K.N_SENSOR_STATES),
-           ("inputs", len(K.INPUT_FIELDS)), ("power_kw", 1), ("cat_params", 25), ("aux_params", K.N_AUX),
+           ("inputs", len(K.INPUT_FIELDS)), ("power_kw", 1), ("cat_params", N_CAT_PARAMS), ("aux_params", K.N_AUX),
            ("noise", K.N_NOISE), ("out", len(K.OUTPUT_FIELDS)), ("action_norm", 1), ("weights", 3), ("terms", 3),
            ("reward", 1), ("acc", N_ACC))
 

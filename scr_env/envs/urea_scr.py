@@ -11,7 +11,7 @@ from gymnasium import spaces
 from scr_env.cycles import ExhaustTrace
 from scr_env.envs import core
 from scr_env.envs.config import O2_FRACTION, EnvConfig, flag, make_config, reset_coverage, reset_options
-from scr_env.params import pack, randomised
+from scr_env.params import pack
 from scr_env.physics import kernel as K
 
 RESET_OPTIONS = ("cold_start", "initial_coverage", "cycle_seed")
@@ -94,7 +94,8 @@ class UreaSCREnv(gym.Env):
     | cycle | "whtc" | "whtc", "whsc", "random" (new seeded cycle each reset), a CSV path, or an ExhaustTrace |
     | catalyst | "cu_zeolite" | preset name or :class:`~scr_env.params.CatalystParams` |
     | dt | 0.5 | control interval [s] (the thesis data: 0.5 s) |
-    | ageing | 0.0 | catalyst ageing severity in [0, 1] (:func:`scr_env.params.aged`) |
+    | age_h | 0.0 | catalyst hydrothermal ageing [h], 0-16 (the CLEERS samples), or (lo, hi) drawn per reset |
+    | ageing | 0.0 | older form: ageing severity in [0, 1] = age_h / 16 (:func:`scr_env.params.aged`) |
     | sensor_noise | True | False removes sensor noise (lags stay) |
     | sensors, dosing | defaults | :class:`~scr_env.params.SensorParams`, :class:`~scr_env.params.DosingParams` |
     | reward_weights | None | dict with keys nox, nh3, adblue |
@@ -179,11 +180,8 @@ class UreaSCREnv(gym.Env):
         self._n = tr.n_steps
         self._noise = self.np_random.standard_normal((self._n, K.N_NOISE))
         b = self._batch
-        if cfg.randomize > 0:
-            from scr_env.params import aged
-
-            cat = randomised(cfg.catalyst, self.np_random, cfg.randomize)
-            b.cat_params[0] = pack(aged(cat, cfg.ageing) if cfg.ageing > 0 else cat)
+        if cfg.randomizes:
+            b.cat_params[0] = pack(cfg.episode_catalyst(self.np_random))
         else:
             b.cat_params[0] = self._base_params
         t0 = float(tr.scr_inlet_temperature_k[0])

@@ -11,7 +11,7 @@ from gymnasium.vector.utils import batch_space
 from scr_env.cycles import ExhaustTrace
 from scr_env.envs import core
 from scr_env.envs.config import O2_FRACTION, flag, make_config, reset_coverage, reset_options
-from scr_env.params import aged, pack, randomised
+from scr_env.params import pack
 from scr_env.physics import kernel as K
 
 RESET_OPTIONS = ("initial_coverage", "reset_mask")
@@ -154,9 +154,8 @@ class UreaSCRVectorEnv(VectorEnv):
             self._base[i] = self._trace_base[t] + offset
             self._len[i] = length - offset
             self._k[i] = 0
-            if cfg.randomize > 0:
-                cat = randomised(cfg.catalyst, rng, cfg.randomize)
-                b.cat_params[i] = pack(aged(cat, cfg.ageing) if cfg.ageing > 0 else cat)
+            if cfg.randomizes:
+                b.cat_params[i] = pack(cfg.episode_catalyst(rng))
             else:
                 b.cat_params[i] = self._base_params
             row = self._flat[self._base[i]]

@@ -39,7 +39,7 @@ from scr_env.constants import (
     EXHAUST_MOLAR_MASS_KG_MOL,
     NH3_MOL_PER_G_ADBLUE,
 )
-from scr_env.params import DosingParams, SensorParams
+from scr_env.params import DosingParams, P, SensorParams
 from scr_env.physics.backends import (
     FASTMATH,
     arrhenius_constants_nb,
@@ -106,6 +106,11 @@ _NEWTON_MAX_IT = 100
 _MIN_Q = 1e-12  # 1/s: floor of flow per site, keeps the algebra defined at zero flow
 _EXP_CP = EXHAUST_MOLAR_MASS_KG_MOL * EXHAUST_HEAT_CAPACITY_J_KG_K  # J/(mol K) of exhaust
 _NH3_PER_G = NH3_MOL_PER_G_ADBLUE
+# packed kinetic parameters (scr_env.params.PACKED_FIELDS): the first, and the O2 reference and orders
+_K0 = P["a_ads"]
+_K_O2_REF = P["o2_reference_fraction"]
+_K_O2_STD = P["o2_order_std"]
+_K_O2_OX = P["o2_order_ox"]
 
 
 def pack_aux(dosing: DosingParams, sensors: SensorParams) -> np.ndarray:
@@ -116,15 +121,16 @@ def pack_aux(dosing: DosingParams, sensors: SensorParams) -> np.ndarray:
 
 
 @numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True, inline="always")
-def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast,
-                   k_no2, k_ox, k_ox_no, k_n2o):
+def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k):
     """Root in [0, 1] of R(theta) = (theta - theta_old) inv_dt - g(theta), and :func:`cell_balance` there.
 
+    ``k`` is the tuple of per-site rate constants (:data:`scr_env.physics.cell.RATE_CONSTANT_NAMES`).
     inv_dt = 1/dt gives the implicit Euler step; inv_dt = 0 gives the steady state. R(0) <= 0 <= R(1) always,
     so a Newton iteration kept inside a shrinking bracket always converges. Returns (theta_end, *cell_balance(th))
     at the accepted iterate th: for inv_dt > 0, theta_end = theta_old + g(th) / inv_dt (the conservative end state
     of the module docstring), for inv_dt = 0, theta_end = th.
     """
+    k_ads = k[0]
     lo = 0.0
     hi = 1.0
     th = min(max(theta_old, 0.0), 1.0)
@@ -137,8 +143,8 @@ def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_d
     net_tol = _FLUX_TOL if stepping else _STEADY_FLUX_TOL
     gross_tol = _GROSS_TOL if stepping else _STEADY_FLUX_TOL
     while True:
-        r = cell_balance_nb(th, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast, k_no2,
-                            k_ox, k_ox_no, k_n2o)
+        r = cell_balance_nb(th, q, y_nh3_in, y_no_in, y_no2_in, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7],
+                            k[8], k[9], k[10], k[11], k[12], k[13])
         res = (th - theta_old) * inv_dt - r[0]
         # converged when the residual flux is negligible against the N fluxes of the cell (net: fed and stored;
         # gross: r[2] (q + k_ads) bounds the adsorption and desorption rates); the outputs r belong to this theta
@@ -186,25 +192,28 @@ def _chemistry_row(theta, temperature_k, b, q, y_nh3_in, y_no_in, y_no2_in, o2_f
     y_no2 = y_no2_in
     y_n2o = 0.0
     n2_per_site = 0.0
-    if o2_fraction == p[b, 22] and 0.0 < o2_fraction < math.inf:
-        # O2 at the lab reference (the environments' O2_FRACTION): o2_factors gives exactly 1, 1 (log(1) = 0,
-        # exp(0) = 1); skipping its log and two exps saves ~5 % of the transcendental calls of a plant step
+    o2_ref = p[b, _K_O2_REF]
+    if o2_fraction == o2_ref and 0.0 < o2_fraction < math.inf:
+        # O2 at the lab reference (the environments' O2_FRACTION): o2_factors gives exactly 1, 1, 1 (log(1) = 0,
+        # exp(0) = 1); skipping its log and three exps saves transcendental calls of a plant step
         f_std = 1.0
         f_ox = 1.0
+        f_half = 1.0
     else:
-        f_std, f_ox = o2_factors_nb(o2_fraction, p[b, 22], p[b, 23], p[b, 24])
+        f_std, f_ox, f_half = o2_factors_nb(o2_fraction, o2_ref, p[b, _K_O2_STD], p[b, _K_O2_OX])
+    k0 = _K0
     for j in range(n):
-        k_ads, k_des, e_dg, k_std, k_fast, k_no2, k_ox, k_ox_no, k_n2o = arrhenius_constants_nb(
-            temperature_k[b, j], f_std, f_ox, p[b, 6], p[b, 7], p[b, 8], p[b, 9], p[b, 10], p[b, 11], p[b, 12],
-            p[b, 13], p[b, 14], p[b, 15], p[b, 16], p[b, 17], p[b, 18], p[b, 19], p[b, 20], p[b, 21])
-        th, r = solve_coverage(theta[b, j], inv_dt, q, y_nh3, y_no, y_no2, k_ads, k_des, e_dg, k_std, k_fast, k_no2,
-                               k_ox, k_ox_no, k_n2o)
+        k = arrhenius_constants_nb(
+            temperature_k[b, j], f_std, f_ox, f_half, o2_ref, p[b, k0], p[b, k0 + 1], p[b, k0 + 2], p[b, k0 + 3],
+            p[b, k0 + 4], p[b, k0 + 5], p[b, k0 + 6], p[b, k0 + 7], p[b, k0 + 8], p[b, k0 + 9], p[b, k0 + 10],
+            p[b, k0 + 11], p[b, k0 + 12], p[b, k0 + 13], p[b, k0 + 14], p[b, k0 + 15], p[b, k0 + 16],
+            p[b, k0 + 17], p[b, k0 + 18], p[b, k0 + 19], p[b, k0 + 20], p[b, k0 + 21], p[b, k0 + 22],
+            p[b, k0 + 23])
+        th, r = solve_coverage(theta[b, j], inv_dt, q, y_nh3, y_no, y_no2, k)
         theta[b, j] = th
-        (_g, _dg, y_nh3, y_no, y_no2, r_std, r_fast, r_no2, r_ox, _r_ox_no, r_n2o) = r
-        y_n2o += r_n2o / q
-        # N atoms to N2 per site: standard 2, fast 4, NO2-SCR 7/3 (4/3 NH3 + 1 NO2), oxidation to N2 1;
-        # N2O takes 2 N (1 NH3 + 1 NO) per r_n2o, NH3 -> NO keeps its N in the gas
-        n2_per_site += 0.5 * (2.0 * r_std + 4.0 * r_fast + (7.0 / 3.0) * r_no2 + r_ox)
+        (_g, _dg, y_nh3, y_no, y_no2, n2o_per_site, n2_cell, _nitrate) = r
+        y_n2o += n2o_per_site / q
+        n2_per_site += n2_cell
     return y_no, y_no2, y_nh3, y_n2o, n2_per_site
 
 
