@@ -9,12 +9,15 @@ Three parts, each with its source:
    densities of ``updatedSCR/550C_SCR.py``). Its four sites are lumped onto this model's single site: the rate
    constant per stored NH3 is the mean over the sites weighted by the NH3 each holds at the equilibrium with
    300 ppm NH3 and 5 % H2O (the CLEERS feed); the nitrate consumption constants are weighted by where the nitrate
-   forms. The cats time scale is referred to this model's through the standard-SCR rate: every nitrate constant is
-   multiplied by lambda(T) = k_std(this model) / k_std(cats, lumped), which keeps the cats ratios of nitrate
-   formation to standard SCR, of nitrate level to NH3 coverage and of the three nitrate fates. Each transferred
-   constant is fitted by an Arrhenius law over 150-550 C. No NO2 measurement enters.
-2. **The unaged kinetics from our data** (:func:`fit_unaged`): storage (Temkin) to the isotherm file and the
-   measured NH3 uptake of the storage steps; standard SCR, the NH3 oxidations, NO oxidation and the two N2O routes to
+   forms. Nitrate formation competes with standard SCR for the stored NH3, whose per-site rate this lumped model
+   fits on its own storage basis, so it is referred to this model's standard SCR: multiplied by
+   lambda(T) = k_std(this model) / k_std(cats, lumped), which keeps the cats ratio of nitrate formation to standard
+   SCR. The nitrate's fates (with NO, to NH3 + HNO3, to N2O) are per nitrate molecule and keep the cats rates, so
+   the nitrate's lifetime and the amount per catalyst volume are those of cats. Each transferred constant is
+   fitted by an Arrhenius law over 150-550 C. No NO2 measurement enters.
+2. **The unaged kinetics from our data** (:func:`fit_unaged`): storage (Temkin, with the saturation capacity of
+   the cats sites, :data:`CATS_SATURATION_MOL_M3`) to the isotherm file and the measured NH3 uptake of the storage
+   steps; standard SCR, the NH3 oxidations, NO oxidation and the two N2O routes to
    the plateaus of ``cleers_cu_ssz13_standard_scr_plateaus.csv`` (Unaged) and the low-temperature sweep.
 3. **Ageing** (:func:`fit_ageing`): per measured age, factors of the storage capacity and desorption energy and of
    the reaction pre-exponentials, to that age's plateaus and uptakes, with the losses constrained monotone in age.
@@ -32,7 +35,7 @@ from scipy.optimize import least_squares
 
 from scr_env import catalyst_data as cd
 from scr_env.lab import LAB_CELLS, STANDARD_TEMPERATURE_K
-from scr_env.params import AGEING_TABLE, MAX_AGE_H, CatalystParams, pack, scr_activity_arrhenius
+from scr_env.params import AGEING_TABLE, MAX_AGE_H, CatalystParams, pack
 from scr_env.physics.kernel import catalyst_chemistry, solve_coverage
 
 R_CATS = 8.3145  # J/(mol K), the gas constant of cats (arrhenius_rate_const)
@@ -61,6 +64,9 @@ CATS_RATES = {
 }
 #: unaged site densities [mol/L]: Z1CuOH, Z2Cu, ZH (updatedSCR/550C_SCR.py)
 CATS_SITES_UNAGED = (0.052619016, 0.023125746, 0.01632 + 0.003233 + 0.006699)
+#: NH3 the unaged cats sites hold at saturation [mol/m3]: Z1CuOH + 2 Z2Cu (Z2Cu-(NH3)2) + ZH, on the volume basis of
+#: the isotherm file that the storage is fitted to (so the single site of this model saturates where cats does)
+CATS_SATURATION_MOL_M3 = 1000.0 * (CATS_SITES_UNAGED[0] + 2.0 * CATS_SITES_UNAGED[1] + CATS_SITES_UNAGED[2])
 CATS_FEED = {"nh3": 300e-6, "h2o": 0.05, "o2": 0.10}  # mole fractions of the lumping state [chosen: CLEERS feed]
 NITRATE_FIT_T_C = np.arange(150.0, 551.0, 25.0)  # C, grid of the Arrhenius fits of the transferred constants
 
@@ -114,13 +120,18 @@ def nitrate_route(a_std_m3_mol_s: float, e_std_j_mol: float) -> dict[str, float]
     lam = a_std_m3_mol_s * np.exp(-e_std_j_mol / (R * t_k)) * c_total / np.array([c["k_std"] for c in cats])
     for key, field, per_conc in (("k_an", "an", True), ("k_an_no", "an_no", True), ("k_an_dec", "an_dec", False),
                                  ("k_an_n2o", "an_n2o", False)):
-        k = lam * np.array([c[key] for c in cats]) / (c_total if per_conc else 1.0)
-        slope, icpt = np.polyfit(-1.0 / (R * t_k), np.log(k), 1)
+        scale = lam if key == "k_an" else 1.0  # formation referred to our SCR; the nitrate's fates as in cats
+        k = scale * np.array([c[key] for c in cats]) / (c_total if per_conc else 1.0)
+        unit = "m3_mol_s" if per_conc else "1_s"
+        if field == "an_n2o":  # shares the activation energy of nitrate -> NH3 + HNO3 (cell.arrhenius_constants)
+            slope = out["e_an_dec_j_mol"]
+            icpt = float(np.mean(np.log(k) + slope / (R * t_k)))
+        else:
+            slope, icpt = np.polyfit(-1.0 / (R * t_k), np.log(k), 1)
+            out[f"e_{field}_j_mol"] = float(slope)
         fit = np.exp(icpt - slope / (R * t_k))
         worst = max(worst, float(np.max(np.abs(fit / k - 1.0))))
-        unit = "m3_mol_s" if per_conc else "1_s"
         out[f"a_{field}_{unit}"] = float(np.exp(icpt))
-        out[f"e_{field}_j_mol"] = float(slope)
     out["nitrate_arrhenius_worst_relative_error"] = worst
     return out
 
@@ -144,7 +155,7 @@ def lab_storage(p: np.ndarray, capacity: float, t_c: float, nh3_ppm: float) -> f
     t_k = t_c + 273.15
     k = rate_constants_nb(t_k, 0.1, *p[KINETIC_SLICE])
     q = FLOW_PER_M3 / (capacity / LAB_CELLS)
-    th, _ = solve_coverage(0.0, 0.0, q, nh3_ppm * 1e-6, 0.0, 0.0, (k[0], k[1], k[2]) + (0.0,) * 11)
+    th, _, _ = solve_coverage(0.0, 0.0, q, nh3_ppm * 1e-6, 0.0, 0.0, (k[0], k[1], k[2]) + (0.0,) * 11)
     return th * capacity
 
 
@@ -257,10 +268,10 @@ def _residual_vector(res: Sequence[Residual], p: np.ndarray, capacity: float) ->
 # --- part 2: unaged ------------------------------------------------------------------------------------------------
 #: fitted unaged fields: (field, transform) with "log" for pre-exponentials and capacities, "kj" for energies
 UNAGED_FIELDS: tuple[tuple[str, str], ...] = (
-    ("storage_capacity_mol_m3", "log"), ("a_des_1_s", "log"), ("e_des_j_mol", "kj"), ("temkin_gamma", "lin"),
-    ("a_std_m3_mol_s", "log"), ("e_std_j_mol", "kj"), ("a_n2o_m3_mol_s", "log"), ("e_n2o_j_mol", "kj"),
+    ("a_des_1_s", "log"), ("e_des_j_mol", "kj"), ("temkin_gamma", "lin"),
+    ("a_std_m3_mol_s", "log"), ("e_std_j_mol", "kj"), ("a_n2o_m3_mol_s", "log"),
     ("a_ox_1_s", "log"), ("e_ox_j_mol", "kj"), ("a_ox_no_1_s", "log"), ("e_ox_no_j_mol", "kj"),
-    ("a_ox_n2o_1_s", "log"), ("e_ox_n2o_j_mol", "kj"), ("a_no_ox_m3_mol_s", "log"), ("e_no_ox_j_mol", "kj"),
+    ("a_ox_n2o_1_s", "log"), ("a_no_ox_m3_mol_s", "log"), ("e_no_ox_j_mol", "kj"),
     ("o2_order_ox", "lin"),
 )
 _BOUNDS = {"temkin_gamma": (0.0, 0.99), "o2_order_ox": (0.0, 1.5)}
@@ -292,8 +303,8 @@ def fit_unaged(start: CatalystParams, rounds: int = 2, verbose: bool = False) ->
     between rounds)."""
     res = unaged_lab_residuals() + plateau_residuals(0.0) + uptake_residuals(0.0)
     cat = with_nitrate(start)
-    lo = [(_BOUNDS[f][0] if f in _BOUNDS else 5.0 if k == "kj" else -np.inf) for f, k in UNAGED_FIELDS]
-    hi = [(_BOUNDS[f][1] if f in _BOUNDS else 400.0 if k == "kj" else np.inf) for f, k in UNAGED_FIELDS]
+    lo = [(_BOUNDS[f][0] if f in _BOUNDS else 5.0 if k == "kj" else -60.0) for f, k in UNAGED_FIELDS]
+    hi = [(_BOUNDS[f][1] if f in _BOUNDS else 400.0 if k == "kj" else 100.0) for f, k in UNAGED_FIELDS]
     fit = None
     for _ in range(rounds):
         base = cat
@@ -358,8 +369,8 @@ def fit_all(start: CatalystParams, verbose: bool = False) -> tuple[CatalystParam
     keys, lo_a, hi_a, x0_a = _ageing_layout(ages)
     res0 = unaged_lab_residuals() + plateau_residuals(0.0) + uptake_residuals(0.0)
     res = {a: plateau_residuals(a) + uptake_residuals(a) for a in ages}
-    lo_u = [(_BOUNDS[f][0] if f in _BOUNDS else 5.0 if k == "kj" else -np.inf) for f, k in UNAGED_FIELDS]
-    hi_u = [(_BOUNDS[f][1] if f in _BOUNDS else 400.0 if k == "kj" else np.inf) for f, k in UNAGED_FIELDS]
+    lo_u = [(_BOUNDS[f][0] if f in _BOUNDS else 5.0 if k == "kj" else -60.0) for f, k in UNAGED_FIELDS]
+    hi_u = [(_BOUNDS[f][1] if f in _BOUNDS else 400.0 if k == "kj" else 100.0) for f, k in UNAGED_FIELDS]
     x0_u = np.clip(_encode(start, UNAGED_FIELDS), np.array(lo_u) + 1e-9, np.array(hi_u) - 1e-9)
     n_u = len(UNAGED_FIELDS)
 
@@ -370,35 +381,18 @@ def fit_all(start: CatalystParams, verbose: bool = False) -> tuple[CatalystParam
         cat, tab = split(x)
         out = [_residual_vector(res0, pack(cat), cat.storage_capacity_effective_mol_m3)]
         for a in ages:
-            c = _aged(cat, tab, a)
-            out.append(_residual_vector(res[a], pack(c), c.storage_capacity_effective_mol_m3))
+            c = cat.replace(age_h=a)
+            out.append(_residual_vector(res[a], pack(c, tab), cat.storage_capacity_mol_m3 * tab[a]["storage"]))
         return np.concatenate(out)
 
     fit = least_squares(fun, np.concatenate([x0_u, x0_a]), bounds=(lo_u + lo_a, hi_u + hi_a), loss="soft_l1",
-                        f_scale=2.0, x_scale="jac", max_nfev=300, verbose=2 if verbose else 0)
+                        f_scale=2.0, x_scale="jac", max_nfev=800, verbose=2 if verbose else 0)
     cat, tab = split(fit.x)
     final = fun(fit.x)
     labels = [r.label for r in res0] + [r.label for a in ages for r in res[a]]
     return cat, tab, {"residuals": dict(zip(labels, map(float, final))),
                       "rms_scaled_residual": float(np.sqrt(np.mean(final ** 2))), "nfev": int(fit.nfev),
                       "status": fit.message}
-
-
-def _aged(cat: CatalystParams, table: dict[float, dict[str, float]], age_h: float) -> CatalystParams:
-    """``cat`` at ``age_h`` under a candidate ageing table (the factors applied to the fields as pack() does)."""
-    f = table[age_h]
-    act, de = scr_activity_arrhenius(f["activity_200c"], f["activity_550c"])
-    return dataclasses.replace(
-        cat, age_h=0.0,
-        storage_capacity_mol_m3=cat.storage_capacity_mol_m3 * f["storage"],
-        e_des_j_mol=cat.e_des_j_mol + f["e_des_shift_j_mol"],
-        a_std_m3_mol_s=cat.a_std_m3_mol_s * act, a_an_m3_mol_s=cat.a_an_m3_mol_s * act,
-        a_an_no_m3_mol_s=cat.a_an_no_m3_mol_s * act, a_an_dec_1_s=cat.a_an_dec_1_s * act,
-        a_an_n2o_1_s=cat.a_an_n2o_1_s * act, e_std_j_mol=cat.e_std_j_mol + de, e_an_j_mol=cat.e_an_j_mol + de,
-        e_an_no_j_mol=cat.e_an_no_j_mol + de, e_an_dec_j_mol=cat.e_an_dec_j_mol + de,
-        e_an_n2o_j_mol=cat.e_an_n2o_j_mol + de, a_n2o_m3_mol_s=cat.a_n2o_m3_mol_s * f["n2o"],
-        a_ox_1_s=cat.a_ox_1_s * f["ox"], a_ox_no_1_s=cat.a_ox_no_1_s * f["ox_no"],
-        a_ox_n2o_1_s=cat.a_ox_n2o_1_s * f["ox_n2o"], a_no_ox_m3_mol_s=cat.a_no_ox_m3_mol_s * f["no_ox"])
 
 
 assert MAX_AGE_H == max(cd.AGES_H)

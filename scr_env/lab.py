@@ -126,7 +126,7 @@ def steady_state(catalyst: str | CatalystParams, temperature_c: float, ghsv_per_
     # adsorption equilibrium with the feed: the same cell with every consuming reaction switched off
     k = rate_constants_nb(t_k, max(o2, 1e-9) / 100.0, *p[KINETIC_SLICE])
     k_eq = (k[0], k[1], k[2]) + (0.0,) * (len(k) - 3)
-    theta_eq, _ = solve_coverage(0.0, 0.0, q, nh3 * 1e-6, 0.0, 0.0, k_eq)
+    theta_eq, _, _ = solve_coverage(0.0, 0.0, q, nh3 * 1e-6, 0.0, 0.0, k_eq)
     nox_in = no + no2
     nox_out = no_out + no2_out
     return {

@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from scr_env.constants import AMBIENT_TEMPERATURE_K
+from scr_env.physics.cell import SCR_FACTOR_ANCHORS_K
 
 
 @dataclass(frozen=True)
@@ -36,46 +37,43 @@ class CatalystParams:
     # --- geometry and storage --------------------------------------------------------------------------------
     volume_m3: float = 0.034  # m3 of catalyst brick, 12 L engine [lit: Willems and Cloudt 2011, zeolite SCR]
     n_cells: int = 5  # axial CSTR cells [chosen: PHYSICS.md allows 5-10; 5 keeps the vector env fast]
-    storage_capacity_mol_m3: float = 98.238  # mol NH3 sites per m3 catalyst, unaged [fitted: calibrate_catalyst]
+    storage_capacity_mol_m3: float = 125.12  # mol NH3 sites per m3 catalyst, unaged [fitted: calibrate_catalyst]
     # --- NH3 adsorption / Temkin desorption -----------------------------------------------------------------
     a_ads_m3_mol_s: float = 1000  # m3/(mol s), not activated [chosen: fast, adsorption is never rate limiting]
-    a_des_1_s: float = 1.1483e7  # 1/s [fitted: calibrate_catalyst]
-    e_des_j_mol: float = 77998  # J/mol at zero coverage [fitted: calibrate_catalyst]
-    temkin_gamma: float = 0.271  # - , E_des = E_des0 (1 - gamma theta) [fitted: calibrate_catalyst]
+    a_des_1_s: float = 2.0731e7  # 1/s [fitted: calibrate_catalyst]
+    e_des_j_mol: float = 80465  # J/mol at zero coverage [fitted: calibrate_catalyst]
+    temkin_gamma: float = 0.39901  # - , E_des = E_des0 (1 - gamma theta) [fitted: calibrate_catalyst]
     # --- standard SCR: 4 NH3* + 4 NO + O2 -> 4 N2 + 6 H2O (Eley-Rideal, first order in NO) ---------------------
-    a_std_m3_mol_s: float = 1.4478e7  # m3/(mol s) [fitted: calibrate_catalyst]
-    e_std_j_mol: float = 67756  # J/mol [fitted: calibrate_catalyst]
+    a_std_m3_mol_s: float = 1.4724e7  # m3/(mol s) [fitted: calibrate_catalyst]
+    e_std_j_mol: float = 67894  # J/mol [fitted: calibrate_catalyst]
     # --- N2O from NH3* + NO: 2 NH3* + 2 NO + 3/2 O2 -> 2 N2O + 3 H2O (rate per N2O) ---------------------------------
-    a_n2o_m3_mol_s: float = 252443  # m3/(mol s) [fitted: calibrate_catalyst, standard-SCR N2O]
-    e_n2o_j_mol: float = 69029  # J/mol [fitted: calibrate_catalyst]
+    a_n2o_m3_mol_s: float = 207221  # m3/(mol s) [fitted: calibrate_catalyst]; its E is e_std_j_mol (cell.py)
     # --- NH3 oxidation to N2: 4 NH3* + 3 O2 -> 2 N2 + 6 H2O (rate per NH3) -------------------------------------
-    a_ox_1_s: float = 238.41  # 1/s [fitted: calibrate_catalyst]
-    e_ox_j_mol: float = 60335  # J/mol [fitted: calibrate_catalyst]
+    a_ox_1_s: float = 222.1  # 1/s [fitted: calibrate_catalyst]
+    e_ox_j_mol: float = 59923  # J/mol [fitted: calibrate_catalyst]
     # --- NH3 oxidation to NO (high temperature): 4 NH3* + 5 O2 -> 4 NO + 6 H2O (rate per NH3) --------------------
-    a_ox_no_1_s: float = 1.1735e10  # 1/s [fitted: calibrate_catalyst]
-    e_ox_no_j_mol: float = 166731  # J/mol [fitted: calibrate_catalyst]
+    a_ox_no_1_s: float = 1.3704e10  # 1/s [fitted: calibrate_catalyst]
+    e_ox_no_j_mol: float = 167844  # J/mol [fitted: calibrate_catalyst]
     # --- NH3 oxidation to N2O (high temperature): 2 NH3* + 2 O2 -> N2O + 3 H2O (rate per NH3) ---------------------
-    a_ox_n2o_1_s: float = 1.0218e7  # 1/s [fitted: calibrate_catalyst]
-    e_ox_n2o_j_mol: float = 182829  # J/mol [fitted: calibrate_catalyst]
+    a_ox_n2o_1_s: float = 3.70508e6  # 1/s [fitted: calibrate_catalyst]; its E is e_ox_no_j_mol (cell.py)
     # --- NO oxidation NO + 1/2 O2 <-> NO2 on sites free of NH3 (reverse from the equilibrium, cell.py) ------------
-    a_no_ox_m3_mol_s: float = 61.618  # m3/(mol s) at 10 % O2 [fitted: calibrate_catalyst, NO-only plateaus]
-    e_no_ox_j_mol: float = 38938  # J/mol [fitted: calibrate_catalyst]
+    a_no_ox_m3_mol_s: float = 50.699  # m3/(mol s) at 10 % O2 [fitted: calibrate_catalyst, NO-only plateaus]
+    e_no_ox_j_mol: float = 39189  # J/mol [fitted: calibrate_catalyst]
     # --- ammonium nitrate route (fast SCR, NO2-SCR, N2O from nitrate) -------------------------------------------
     # 2 NH3* + 2 NO2 -> NH4NO3* + N2 + H2O (per nitrate); NH4NO3* + NO -> N2 + NO2 + 2 H2O; NH4NO3* -> NH3* + NO2
     # (+ H2O, O2); NH4NO3* -> N2O + 2 H2O. [lit: aladshaw3/cats rxns_v7.py r21-r33, lumped over its sites and
     # referred to this model's standard-SCR rate: calibrate_catalyst.nitrate_route]
-    a_an_m3_mol_s: float = 5.7714e8  # m3/(mol s)
-    e_an_j_mol: float = 81400  # J/mol
-    a_an_no_m3_mol_s: float = 481020  # m3/(mol s)
-    e_an_no_j_mol: float = 45633  # J/mol
-    a_an_dec_1_s: float = 5561.9  # 1/s
-    e_an_dec_j_mol: float = 61502  # J/mol
-    a_an_n2o_1_s: float = 1831.3  # 1/s
-    e_an_n2o_j_mol: float = 63856  # J/mol
+    a_an_m3_mol_s: float = 5.8691e8  # m3/(mol s)
+    e_an_j_mol: float = 81538  # J/mol
+    a_an_no_m3_mol_s: float = 246944  # m3/(mol s)
+    e_an_no_j_mol: float = 41549  # J/mol
+    a_an_dec_1_s: float = 2855.4  # 1/s
+    e_an_dec_j_mol: float = 57419  # J/mol
+    a_an_n2o_1_s: float = 585.79  # 1/s; its E is e_an_dec_j_mol (cell.py)
     # --- oxygen dependence (rates are given at the lab's 10 % O2) -----------------------------------------------
     o2_reference_fraction: float = 0.10  # mole fraction of the lab data [data: CLEERS protocol]
     o2_order_std: float = 0.5  # - [chosen: half order in O2 for standard SCR, Olsson et al. 2008]
-    o2_order_ox: float = 0.60564  # - NH3 oxidations and the O2-taking N2O route [fitted: 0.2 % O2 plateaus]
+    o2_order_ox: float = 0.60314  # - NH3 oxidations and the O2-taking N2O route [fitted: 0.2 % O2 plateaus]
     # --- thermal: lumped solid per cell, convective exchange with the gas, loss to ambient ----------------------
     solid_density_kg_m3: float = 2600.0  # kg/m3 cordierite/zeolite [lit: LiU 2018]
     solid_heat_capacity_j_kg_k: float = 1464.0  # J/(kg K) [lit: LiU 2018]
@@ -144,34 +142,26 @@ class CatalystParams:
 MAX_AGE_H = 16.0
 #: Factors of the unaged kinetics per sample age [h] (1 = unaged): "storage" multiplies the storage capacity,
 #: "e_des_shift_j_mol" is added to the desorption energy (ageing removes the strongest sites first);
-#: "activity_200c" and "activity_550c" multiply standard SCR and the nitrate route (the same sites) at 200 and
-#: 550 C, log-linear in 1/T in between (an Arrhenius factor: :func:`scr_activity_arrhenius`); the others multiply
-#: a reaction's pre-exponential.
+#: "activity_200c" and "activity_550c" multiply standard SCR, the N2O route of NH3* + NO and the nitrate route (the
+#: same sites) at 200 and 550 C, log-linear in 1/T in between and held outside (so never above 1 where both are
+#: at most 1; :func:`scr_env.physics.cell.arrhenius_constants`); the others multiply a reaction's pre-exponential.
 #: [fitted: experiments.calibrate_catalyst on cleers_cu_ssz13_standard_scr_plateaus.csv and the NH3 uptake of the
 #: storage steps of cleers_cu_ssz13_isothermal_steps.csv; losses constrained monotone in age]
 AGEING_TABLE: dict[float, dict[str, float]] = {
-    0.0: {"storage": 1, "e_des_shift_j_mol": 0.0, "activity_200c": 1, "activity_550c": 1, "n2o": 1, "ox": 1,
-        "ox_no": 1, "ox_n2o": 1, "no_ox": 1},
-    2.0: {"storage": 1, "e_des_shift_j_mol": -2725.3, "activity_200c": 1, "activity_550c": 0.4508, "n2o": 0.8107,
-        "ox": 0.7782, "ox_no": 0.7584, "ox_n2o": 42.29, "no_ox": 0.8753},
-    4.0: {"storage": 1, "e_des_shift_j_mol": -4237.3, "activity_200c": 1, "activity_550c": 0.4508, "n2o": 0.8601,
-        "ox": 0.8729, "ox_no": 0.9152, "ox_n2o": 76.11, "no_ox": 0.8753},
-    8.0: {"storage": 1, "e_des_shift_j_mol": -5211.0, "activity_200c": 1, "activity_550c": 0.4508, "n2o": 0.874,
-        "ox": 0.8494, "ox_no": 1.092, "ox_n2o": 117.6, "no_ox": 0.8753},
-    16.0: {"storage": 0.9917, "e_des_shift_j_mol": -5430.6, "activity_200c": 1, "activity_550c": 0.4508,
-        "n2o": 0.8832, "ox": 0.8907, "ox_no": 1.263, "ox_n2o": 148.4, "no_ox": 0.8753},
+    0.0: {"storage": 1.0, "e_des_shift_j_mol": 0.0, "activity_200c": 1.0, "activity_550c": 1.0, "n2o": 1.0,
+        "ox": 1.0, "ox_no": 1.0, "ox_n2o": 1.0, "no_ox": 1.0},
+    2.0: {"storage": 1.0, "e_des_shift_j_mol": -2876.9, "activity_200c": 1.0, "activity_550c": 0.4545, "n2o": 1.332,
+        "ox": 0.7843, "ox_no": 0.7616, "ox_n2o": 51.07, "no_ox": 0.8774},
+    4.0: {"storage": 1.0, "e_des_shift_j_mol": -4430.1, "activity_200c": 1.0, "activity_550c": 0.4545, "n2o": 1.377,
+        "ox": 0.8785, "ox_no": 0.9208, "ox_n2o": 74.37, "no_ox": 0.8774},
+    8.0: {"storage": 1.0, "e_des_shift_j_mol": -5424.2, "activity_200c": 1.0, "activity_550c": 0.4545, "n2o": 1.376,
+        "ox": 0.8551, "ox_no": 1.1, "ox_n2o": 97.33, "no_ox": 0.8774},
+    16.0: {"storage": 0.9958, "e_des_shift_j_mol": -5680.5, "activity_200c": 1.0, "activity_550c": 0.4545,
+        "n2o": 1.368, "ox": 0.8948, "ox_no": 1.273, "ox_n2o": 117.1, "no_ox": 0.8774},
 }
 AGEING_FACTORS: tuple[str, ...] = tuple(AGEING_TABLE[0.0])
-ACTIVITY_ANCHORS_K = (473.15, 823.15)  # K, where the "activity_200c" / "activity_550c" factors hold [chosen]
-
-
-def scr_activity_arrhenius(f_low: float, f_high: float) -> tuple[float, float]:
-    """(pre-exponential factor, activation-energy shift [J/mol]) of the Arrhenius factor equal to ``f_low`` at
-    200 C and ``f_high`` at 550 C (:data:`ACTIVITY_ANCHORS_K`)."""
-    t_lo, t_hi = ACTIVITY_ANCHORS_K
-    r = 8.314462618
-    de = -r * (math.log(f_high) - math.log(f_low)) / (1.0 / t_hi - 1.0 / t_lo)
-    return f_low * math.exp(de / (r * t_lo)), de
+#: temperatures [K] where the "activity_200c" / "activity_550c" factors hold (scr_env.physics.cell.SCR_FACTOR_ANCHORS_K)
+ACTIVITY_ANCHORS_K = SCR_FACTOR_ANCHORS_K
 
 
 def check_age_h(age_h: object, name: str = "age_h") -> float:
@@ -209,27 +199,26 @@ PACKED_FIELDS: tuple[str, ...] = (
     "n_cells", "sites_per_cell_mol", "heat_capacity_per_cell_j_k", "gas_solid_ua_per_cell_w_k",
     "ambient_loss_per_cell_w_k", "ambient_temperature_k",
     "a_ads", "a_des", "e_des", "temkin_gamma",
-    "a_std", "e_std", "a_n2o", "e_n2o", "a_ox", "e_ox", "a_ox_no", "e_ox_no", "a_ox_n2o", "e_ox_n2o",
-    "a_no_ox", "e_no_ox", "a_an", "e_an", "a_an_no", "e_an_no", "a_an_dec", "e_an_dec", "a_an_n2o", "e_an_n2o",
-    "o2_reference_fraction", "o2_order_std", "o2_order_ox",
+    "a_std", "e_std", "a_n2o", "a_ox", "e_ox", "a_ox_no", "e_ox_no", "a_ox_n2o", "a_no_ox", "e_no_ox",
+    "a_an", "e_an", "a_an_no", "e_an_no", "a_an_dec", "e_an_dec", "a_an_n2o", "scr_log_factor_low",
+    "scr_log_factor_high", "o2_reference_fraction", "o2_order_std", "o2_order_ox",
 )
 P = {name: i for i, name in enumerate(PACKED_FIELDS)}  # index of each packed parameter
 #: the packed kinetic parameters, in the argument order of scr_env.physics.cell.rate_constants
 KINETIC_SLICE = slice(P["a_ads"], P["o2_order_ox"] + 1)
 
 
-def pack(params: CatalystParams) -> np.ndarray:
+def pack(params: CatalystParams, table: dict[float, dict[str, float]] | None = None) -> np.ndarray:
     """Pack a catalyst into the float64 vector the compiled kernel reads (order: :data:`PACKED_FIELDS`).
 
-    Ageing is applied here: the factors of :func:`ageing_factors` at ``age_h``, then capacity times
-    ``storage_retention`` and every reaction's pre-exponential times ``activity_retention``.
+    Ageing is applied here: the factors of :func:`ageing_factors` at ``age_h`` (from ``table``, default
+    :data:`AGEING_TABLE`), then capacity times ``storage_retention`` and every reaction's pre-exponential times
+    ``activity_retention``.
     """
     n = params.n_cells
     v_cell = params.volume_m3 / n
-    age = ageing_factors(params.age_h)
+    age = ageing_factors(params.age_h, table)
     act = params.activity_retention
-    scr, de = scr_activity_arrhenius(age["activity_200c"], age["activity_550c"])
-    scr *= act  # SCR-site pre-exponential factor; de shifts their activation energies
     values = {
         "n_cells": float(n),
         "sites_per_cell_mol": params.sites_mol / n,
@@ -241,26 +230,25 @@ def pack(params: CatalystParams) -> np.ndarray:
         "a_des": params.a_des_1_s,
         "e_des": params.e_des_j_mol + age["e_des_shift_j_mol"],
         "temkin_gamma": params.temkin_gamma,
-        "a_std": params.a_std_m3_mol_s * scr,
-        "e_std": params.e_std_j_mol + de,
+        "a_std": params.a_std_m3_mol_s * act,
+        "e_std": params.e_std_j_mol,
         "a_n2o": params.a_n2o_m3_mol_s * act * age["n2o"],
-        "e_n2o": params.e_n2o_j_mol,
         "a_ox": params.a_ox_1_s * act * age["ox"],
         "e_ox": params.e_ox_j_mol,
         "a_ox_no": params.a_ox_no_1_s * act * age["ox_no"],
         "e_ox_no": params.e_ox_no_j_mol,
         "a_ox_n2o": params.a_ox_n2o_1_s * act * age["ox_n2o"],
-        "e_ox_n2o": params.e_ox_n2o_j_mol,
         "a_no_ox": params.a_no_ox_m3_mol_s * act * age["no_ox"],
         "e_no_ox": params.e_no_ox_j_mol,
-        "a_an": params.a_an_m3_mol_s * scr,
-        "e_an": params.e_an_j_mol + de,
-        "a_an_no": params.a_an_no_m3_mol_s * scr,
-        "e_an_no": params.e_an_no_j_mol + de,
-        "a_an_dec": params.a_an_dec_1_s * scr,
-        "e_an_dec": params.e_an_dec_j_mol + de,
-        "a_an_n2o": params.a_an_n2o_1_s * scr,
-        "e_an_n2o": params.e_an_n2o_j_mol + de,
+        "a_an": params.a_an_m3_mol_s * act,
+        "e_an": params.e_an_j_mol,
+        "a_an_no": params.a_an_no_m3_mol_s * act,
+        "e_an_no": params.e_an_no_j_mol,
+        "a_an_dec": params.a_an_dec_1_s * act,
+        "e_an_dec": params.e_an_dec_j_mol,
+        "a_an_n2o": params.a_an_n2o_1_s * act,
+        "scr_log_factor_low": math.log(age["activity_200c"]),
+        "scr_log_factor_high": math.log(age["activity_550c"]),
         "o2_reference_fraction": params.o2_reference_fraction,
         "o2_order_std": params.o2_order_std,
         "o2_order_ox": params.o2_order_ox,

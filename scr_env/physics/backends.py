@@ -1,8 +1,7 @@
 """Compile the one-source chemistry of :mod:`scr_env.physics.cell` for numba and for CasADi.
 
 Both backends are built from the same code objects (``cell_balance`` and ``rate_constants``) by rebinding the names
-``exp``, ``log``, ``sqrt``, ``select`` and ``converged`` that the code looks up as globals (``converged`` lets numba
-leave an inner iteration early; CasADi unrolls every step, which past convergence changes nothing). A test
+``exp``, ``log``, ``sqrt`` and ``select`` that the code looks up as globals. A test
 (``tests/scr_env/test_casadi_model.py``) checks that the two agree on random states and inputs.
 """
 from __future__ import annotations
@@ -27,18 +26,9 @@ def _select_scalar(condition: bool, if_true: float, if_false: float) -> float:
     return if_true if condition else if_false
 
 
-@numba.njit(inline="always")
-def _converged_scalar(condition: bool) -> bool:
-    return condition
-
-
-def _never_converged(condition: Any) -> bool:
-    return False
-
-
 # The one-source functions, in dependency order (a function may call those before it).
-_SOURCES = ("o2_factors", "no_oxidation_equilibrium", "arrhenius_constants", "rate_constants", "cell_balance",
-            "decomposition_efficiency")
+_SOURCES = ("o2_factors", "no_oxidation_equilibrium", "arrhenius_constants", "rate_constants", "cell_state",
+            "cell_outlets", "cell_slope", "cell_balance", "decomposition_efficiency")
 
 
 # the numeric module constants of cell.py (thermodynamic data, iteration counts), visible to both backends
@@ -58,7 +48,7 @@ def _compile_all(namespace: dict[str, Any], wrap: Callable[[Callable], Callable]
 
 # "__name__" lets numba's on-disk cache re-import the namespace of the rebound functions.
 _NUMBA_NS: dict[str, Any] = {"__name__": __name__, "exp": math.exp, "log": math.log, "sqrt": math.sqrt,
-                             "select": _select_scalar, "converged": _converged_scalar, "abs": abs}
+                             "select": _select_scalar, "abs": abs}
 # inline="always": numba does not inline across its compiled functions by itself, and a call of cell_balance per
 # Newton iteration (13 doubles in, an 11-tuple out through memory) cost about a seventh of the plant step.
 # LLVM fast-math flags of every compiled plant function: fused multiply-add, reciprocal multiplication, reassociation
@@ -77,6 +67,9 @@ _NB = _compile_all(_NUMBA_NS, numba.njit(**_JIT))
 
 #: numba versions (scalar arguments), used by the compiled plant kernel
 cell_balance_nb = _NB["cell_balance"]
+cell_state_nb = _NB["cell_state"]
+cell_slope_nb = _NB["cell_slope"]
+cell_outlets_nb = _NB["cell_outlets"]
 rate_constants_nb = _NB["rate_constants"]
 arrhenius_constants_nb = _NB["arrhenius_constants"]
 o2_factors_nb = _NB["o2_factors"]
@@ -89,7 +82,6 @@ def casadi_functions() -> tuple[Callable, Callable, Callable]:
     """``(cell_balance, rate_constants, decomposition_efficiency)`` on CasADi SX/MX expressions (lazy import)."""
     import casadi as ca
 
-    ns: dict[str, Any] = {"exp": ca.exp, "log": ca.log, "sqrt": ca.sqrt, "select": ca.if_else,
-                          "converged": _never_converged, "abs": ca.fabs}
+    ns: dict[str, Any] = {"exp": ca.exp, "log": ca.log, "sqrt": ca.sqrt, "select": ca.if_else, "abs": ca.fabs}
     fns = _compile_all(ns, lambda f: f)
     return fns["cell_balance"], fns["rate_constants"], fns["decomposition_efficiency"]

@@ -43,7 +43,9 @@ from scr_env.params import DosingParams, P, SensorParams
 from scr_env.physics.backends import (
     FASTMATH,
     arrhenius_constants_nb,
-    cell_balance_nb,
+    cell_outlets_nb,
+    cell_slope_nb,
+    cell_state_nb,
     decomposition_efficiency_nb,
     o2_factors_nb,
 )
@@ -99,7 +101,7 @@ N_AUX = len(AUX_FIELDS)
 # and the chemistry evaluations per cell and step drop from 3.0 (tolerance 1e-14) to 2.2. [chosen]
 # Without a time step (steady state, inv_dt = 0) there is nothing to correct with: a tolerance of a few tens of ulps.
 _FLUX_TOL = 1e-7  # - [chosen, see above]
-_GROSS_TOL = 1e-10  # - [chosen, see above]
+_GROSS_TOL = 3e-11  # - [chosen, see above]
 _STEADY_FLUX_TOL = 1e-14  # - [chosen: a few tens of ulps, above the rounding floor of the residual]
 _BRACKET_TOL = 4.0 * 2.220446049250313e-16  # relative width of a collapsed bracket (a few ulps of theta) [-]
 _NEWTON_MAX_IT = 100
@@ -122,13 +124,13 @@ def pack_aux(dosing: DosingParams, sensors: SensorParams) -> np.ndarray:
 
 @numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True, inline="always")
 def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k):
-    """Root in [0, 1] of R(theta) = (theta - theta_old) inv_dt - g(theta), and :func:`cell_balance` there.
+    """Root in [0, 1] of R(theta) = (theta - theta_old) inv_dt - g(theta), and :func:`cell_state` there.
 
     ``k`` is the tuple of per-site rate constants (:data:`scr_env.physics.cell.RATE_CONSTANT_NAMES`).
     inv_dt = 1/dt gives the implicit Euler step; inv_dt = 0 gives the steady state. R(0) <= 0 <= R(1) always,
-    so a Newton iteration kept inside a shrinking bracket always converges. Returns (theta_end, *cell_balance(th))
+    so a Newton iteration kept inside a shrinking bracket always converges. Returns (theta_end, th, cell_state(th))
     at the accepted iterate th: for inv_dt > 0, theta_end = theta_old + g(th) / inv_dt (the conservative end state
-    of the module docstring), for inv_dt = 0, theta_end = th.
+    of the module docstring), for inv_dt = 0, theta_end = th. The outlets belong to th (:func:`cell_outlets`).
     """
     k_ads = k[0]
     lo = 0.0
@@ -143,22 +145,24 @@ def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k):
     net_tol = _FLUX_TOL if stepping else _STEADY_FLUX_TOL
     gross_tol = _GROSS_TOL if stepping else _STEADY_FLUX_TOL
     while True:
-        r = cell_balance_nb(th, q, y_nh3_in, y_no_in, y_no2_in, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7],
-                            k[8], k[9], k[10], k[11], k[12], k[13])
+        r = cell_state_nb(th, q, y_nh3_in, y_no_in, y_no2_in, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7], k[8],
+                          k[9], k[10], k[11], k[12], k[13])
         res = (th - theta_old) * inv_dt - r[0]
         # converged when the residual flux is negligible against the N fluxes of the cell (net: fed and stored;
-        # gross: r[2] (q + k_ads) bounds the adsorption and desorption rates); the outputs r belong to this theta
-        if final or abs(res) <= net_tol * (inflow + th * inv_dt) + gross_tol * r[2] * (q + k_ads):
+        # gross: r[1] (q + k_ads) bounds the adsorption and desorption rates); the outputs r belong to this theta
+        if final or abs(res) <= net_tol * (inflow + th * inv_dt) + gross_tol * r[1] * (q + k_ads):
             if stepping:
                 # conservative end state theta_old + dt g(th) = th - res dt (module docstring), kept in [0, 1]
                 end = th - res / inv_dt
                 if 0.0 <= end <= 1.0:
-                    return end, r
+                    return end, th, r
                 if final:
-                    return min(max(end, 0.0), 1.0), r
+                    return min(max(end, 0.0), 1.0), th, r
             else:
-                return th, r
-        d_res = inv_dt - r[1]
+                return th, th, r
+        # the slope only where a Newton step is taken (the accepted state does not need it)
+        d_res = inv_dt - cell_slope_nb(th, q, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7], k[8], k[9], k[10],
+                                       k[11], k[12], k[13], r[1], r[3], r[4], r[5])
         if res > 0.0:
             hi = th
         else:
@@ -202,16 +206,20 @@ def _chemistry_row(theta, temperature_k, b, q, y_nh3_in, y_no_in, y_no2_in, o2_f
     else:
         f_std, f_ox, f_half = o2_factors_nb(o2_fraction, o2_ref, p[b, _K_O2_STD], p[b, _K_O2_OX])
     k0 = _K0
+    inv_sqrt_ref = 1.0 / math.sqrt(o2_ref)
     for j in range(n):
         k = arrhenius_constants_nb(
-            temperature_k[b, j], f_std, f_ox, f_half, o2_ref, p[b, k0], p[b, k0 + 1], p[b, k0 + 2], p[b, k0 + 3],
-            p[b, k0 + 4], p[b, k0 + 5], p[b, k0 + 6], p[b, k0 + 7], p[b, k0 + 8], p[b, k0 + 9], p[b, k0 + 10],
-            p[b, k0 + 11], p[b, k0 + 12], p[b, k0 + 13], p[b, k0 + 14], p[b, k0 + 15], p[b, k0 + 16],
-            p[b, k0 + 17], p[b, k0 + 18], p[b, k0 + 19], p[b, k0 + 20], p[b, k0 + 21], p[b, k0 + 22],
-            p[b, k0 + 23])
-        th, r = solve_coverage(theta[b, j], inv_dt, q, y_nh3, y_no, y_no2, k)
-        theta[b, j] = th
-        (_g, _dg, y_nh3, y_no, y_no2, n2o_per_site, n2_cell, _nitrate) = r
+            temperature_k[b, j], f_std, f_ox, f_half, inv_sqrt_ref, p[b, k0], p[b, k0 + 1], p[b, k0 + 2],
+            p[b, k0 + 3], p[b, k0 + 4], p[b, k0 + 5], p[b, k0 + 6], p[b, k0 + 7], p[b, k0 + 8], p[b, k0 + 9],
+            p[b, k0 + 10], p[b, k0 + 11], p[b, k0 + 12], p[b, k0 + 13], p[b, k0 + 14], p[b, k0 + 15],
+            p[b, k0 + 16], p[b, k0 + 17], p[b, k0 + 18], p[b, k0 + 19], p[b, k0 + 20], p[b, k0 + 21],
+            p[b, k0 + 22])
+        end, th, r = solve_coverage(theta[b, j], inv_dt, q, y_nh3, y_no, y_no2, k)
+        theta[b, j] = end
+        y_nh3 = r[1]
+        # outlets with the rates of the accepted iterate th (the end state differs from it by dt times the residual)
+        y_no, y_no2, n2o_per_site, n2_cell = cell_outlets_nb(th, q, k[3], k[4], k[5], k[6], k[7], k[8], k[9], k[10],
+                                                              k[11], k[12], k[13], r[3], r[4])
         y_n2o += n2o_per_site / q
         n2_per_site += n2_cell
     return y_no, y_no2, y_nh3, y_n2o, n2_per_site

@@ -6,7 +6,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from scr_env.lab import steady_state
 from scr_env.params import (
     PACKED_FIELDS,
     PRESETS,
