@@ -63,7 +63,22 @@ _NUMBA_NS: dict[str, Any] = {"__name__": __name__, "exp": math.exp, "log": math.
 # files under scr_env/ (or touch cell.py, kernel.py and core.py), or stale machine code keeps running.
 FASTMATH = frozenset({"contract", "arcp", "reassoc", "nsz"})
 _JIT = {"nogil": True, "fastmath": set(FASTMATH), "error_model": "numpy", "cache": True, "inline": "always"}
-_NB = _compile_all(_NUMBA_NS, numba.njit(**_JIT))
+# Not inlined: what runs at most once per cell and step (the slope only where a Newton step is taken, the outlets,
+# the rate constants) and the combined cell_balance (tests, lab): inlining them into both plant kernels (serial and
+# parallel) made the cold first step 5 s longer (12 -> 17 s, a new process with an empty cache, 2 loaded cores) for
+# no measurable gain; cell_state, in the Newton loop, stays inlined (745 ns per plant step either way on WHTC states,
+# 805 ns with it called).
+_NOT_INLINED = ("cell_slope", "cell_outlets", "cell_balance", "arrhenius_constants")
+
+
+def _wrap_nb(func: Callable) -> Callable:
+    opts = dict(_JIT)
+    if func.__name__ in _NOT_INLINED:
+        opts["inline"] = "never"
+    return numba.njit(**opts)(func)
+
+
+_NB = _compile_all(_NUMBA_NS, _wrap_nb)
 
 #: numba versions (scalar arguments), used by the compiled plant kernel
 cell_balance_nb = _NB["cell_balance"]
