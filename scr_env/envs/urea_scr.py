@@ -11,7 +11,7 @@ from gymnasium import spaces
 from scr_env.cycles import ExhaustTrace
 from scr_env.envs import core
 from scr_env.envs.config import O2_FRACTION, EnvConfig, flag, make_config, reset_coverage, reset_options
-from scr_env.params import pack, randomised
+from scr_env.params import pack
 from scr_env.physics import kernel as K
 
 RESET_OPTIONS = ("cold_start", "initial_coverage", "cycle_seed")
@@ -179,27 +179,13 @@ class UreaSCREnv(gym.Env):
         self._n = tr.n_steps
         self._noise = self.np_random.standard_normal((self._n, K.N_NOISE))
         b = self._batch
-        if cfg.randomize > 0:
-            from scr_env.params import aged
-
-            cat = randomised(cfg.catalyst, self.np_random, cfg.randomize)
-            b.cat_params[0] = pack(aged(cat, cfg.ageing) if cfg.ageing > 0 else cat)
-        else:
-            b.cat_params[0] = self._base_params
-        t0 = float(tr.scr_inlet_temperature_k[0])
-        b.theta[0] = coverage
-        b.temperature_k[0] = cfg.catalyst.ambient_temperature_k if cold else t0
-        nox0 = float(tr.nox_ppm[0])
-        no2f0 = float(tr.no2_fraction[0])
-        b.sensor_state[0] = (nox0 * (1.0 - no2f0) + cfg.sensors.nox_sensor_no2_gain * nox0 * no2f0, 0.0, t0)
-        b.acc[0] = 0.0
-        b.acc[0, core.A_STORED0_MOL] = float(b.theta[0].sum() * b.cat_params[0, 1])
-        b.initial_observation(0, nox0, t0, float(tr.exhaust_flow_mol_s[0]), self._to_norm(0.0))
+        b.start_episode(0, cfg, self.np_random, self._base_params, self._drive[0], cold, coverage)
         self._k = 0
         self._needs_reset = False
         self._history = []
         if self.render_mode is not None:
-            self._record(0.0, nox0, nox0, 0.0, 0.0, t0, coverage)
+            nox0 = float(tr.nox_ppm[0])
+            self._record(0.0, nox0, nox0, 0.0, 0.0, float(tr.scr_inlet_temperature_k[0]), coverage)
         return b.obs[0].copy(), {"cycle": tr.name, "n_steps": self._n, "dt": self.dt}
 
     def _to_norm(self, rate_g_s: float) -> float:

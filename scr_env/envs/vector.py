@@ -11,7 +11,7 @@ from gymnasium.vector.utils import batch_space
 from scr_env.cycles import ExhaustTrace
 from scr_env.envs import core
 from scr_env.envs.config import O2_FRACTION, flag, make_config, reset_coverage, reset_options
-from scr_env.params import aged, pack, randomised
+from scr_env.params import pack
 from scr_env.physics import kernel as K
 
 RESET_OPTIONS = ("initial_coverage", "reset_mask")
@@ -154,21 +154,9 @@ class UreaSCRVectorEnv(VectorEnv):
             self._base[i] = self._trace_base[t] + offset
             self._len[i] = length - offset
             self._k[i] = 0
-            if cfg.randomize > 0:
-                cat = randomised(cfg.catalyst, rng, cfg.randomize)
-                b.cat_params[i] = pack(aged(cat, cfg.ageing) if cfg.ageing > 0 else cat)
-            else:
-                b.cat_params[i] = self._base_params
-            row = self._flat[self._base[i]]
-            t0 = float(row[core.D_TIN])
-            cold = cfg.cold_start and offset == 0
-            b.theta[i] = coverage
-            b.temperature_k[i] = cfg.catalyst.ambient_temperature_k if cold else t0
-            nox0, no2f = float(row[core.D_NOX]), float(row[core.D_NO2F])
-            b.sensor_state[i] = (nox0 * (1.0 - no2f) + cfg.sensors.nox_sensor_no2_gain * nox0 * no2f, 0.0, t0)
-            b.acc[i] = 0.0
-            b.acc[i, core.A_STORED0_MOL] = float(b.theta[i].sum() * b.cat_params[i, 1])
-            b.initial_observation(int(i), nox0, t0, float(row[core.D_FLOW]), -1.0)
+            # a cold start only at the start of the cycle; a random offset starts mid-cycle, warm
+            b.start_episode(int(i), cfg, rng, self._base_params, self._flat[self._base[i]],
+                            cfg.cold_start and offset == 0, coverage)
 
     # ----------------------------------------------------------------------------------------------- API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
