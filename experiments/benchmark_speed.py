@@ -7,7 +7,9 @@ Reported:
   resetting at the end of the cycle;
 * ``pendulum_steps_per_s``: ``gymnasium.make("Pendulum-v1")`` the same way (the reference for Python overhead);
 * ``vector_env_steps_per_s``: env-steps per second of the native vector environment with ``num_envs`` plants;
-* ``rpem_samples_per_s`` (and the full degree-2 model) from :mod:`experiments.benchmark_rpem`, when available.
+* ``rpem_samples_per_s`` (and the full degree-2 model) from :mod:`experiments.benchmark_rpem`, when available;
+* ``{single,vector}_{cold,warm}_first_step_s``: seconds from a new process to the end of the first step, with an
+  empty numba cache (cold) and with the cache it left (warm), from :func:`scr_env.startup.first_step_times`.
 Everything is timed after a warm-up (JIT compilation excluded). The three figures are measured in ``--rounds``
 interleaved rounds of about ``--seconds`` each (Pendulum, single, vector, Pendulum, ...) and each is the median of
 its rounds, so a change of the machine's state during the run (other load, clock) affects the reference and the
@@ -75,7 +77,8 @@ def _time_vector(num_envs: int, seconds: float) -> float:
     return steps / (now - start)
 
 
-def measure(num_envs: int = 1024, seconds: float = 2.0, rpem: bool = True, rounds: int = 3) -> dict[str, Any]:
+def measure(num_envs: int = 1024, seconds: float = 2.0, rpem: bool = True, rounds: int = 3,
+            first_step: bool = False) -> dict[str, Any]:
     """All throughput figures, as a dict (see the module docstring)."""
     if rounds < 1:
         raise ValueError(f"rounds must be >= 1, got {rounds!r}")
@@ -97,6 +100,10 @@ def measure(num_envs: int = 1024, seconds: float = 2.0, rpem: bool = True, round
             result["rpem_error"] = f"experiments.benchmark_rpem unavailable: {e}"
         else:
             result.update(measure_rpem_speed())
+    if first_step:
+        from scr_env.startup import first_step_times
+
+        result.update(first_step_times())
     result["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count(),
                          "processor": platform.processor() or platform.machine()}
     return result
@@ -109,10 +116,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--seconds", type=float, default=2.0, help="timing window per figure and round [s] (default 2)")
     ap.add_argument("--rounds", type=int, default=3, help="interleaved measuring rounds, median reported (default 3)")
     ap.add_argument("--no-rpem", action="store_true", help="skip the RPEM figures")
+    ap.add_argument("--no-first-step", action="store_true", help="skip the cold/warm first-step times")
     args = ap.parse_args(argv)
     if args.num_envs < 1 or args.seconds <= 0 or args.rounds < 1:
         ap.error("--num-envs and --rounds must be >= 1 and --seconds > 0")
-    r = measure(args.num_envs, args.seconds, rpem=not args.no_rpem, rounds=args.rounds)
+    r = measure(args.num_envs, args.seconds, rpem=not args.no_rpem, rounds=args.rounds,
+                first_step=not args.no_first_step)
     print(f"Pendulum-v1 (gym.make)        {r['pendulum_steps_per_s']:>12,.0f} steps/s")
     print(f"UreaSCR-v0 single (gym.make)  {r['env_steps_per_s']:>12,.0f} steps/s   "
           f"{r['single_vs_pendulum']:.2f}x Pendulum (goal 0.5x)")
@@ -121,6 +130,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     for key in ("rpem_samples_per_s", "rpem_full_degree2_samples_per_s"):
         if key in r:
             print(f"{key:30s}{r[key]:>12,.0f} samples/s")
+    for kind in ("single", "vector") if "single_cold_first_step_s" in r else ():
+        print(f"first step {kind:6s} (new process)  cold {r[f'{kind}_cold_first_step_s']:5.2f} s, "
+              f"warm {r[f'{kind}_warm_first_step_s']:5.2f} s   (CPU {r[f'{kind}_cold_first_step_cpu_s']:.2f} / "
+              f"{r[f'{kind}_warm_first_step_cpu_s']:.2f} s)")
     if "rpem_error" in r:
         print(r["rpem_error"])
     if args.json:

@@ -272,6 +272,10 @@ class SurrogateSCREnv(gym.Env):
             info["episode_kpis"] = self._b.kpis(0)
         return self._b.obs[0].copy(), float(reward[0]), False, bool(done[0]), info
 
+    def episode_kpis(self) -> dict[str, float]:
+        """The KPIs of the current episode so far (as the plant's :meth:`UreaSCREnv.episode_kpis`)."""
+        return self._b.kpis(0)
+
 
 class SurrogateVectorEnv(VectorEnv):
     """``num_envs`` surrogate plants, one batched model call per step; ``AutoresetMode.SAME_STEP`` like

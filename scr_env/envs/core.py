@@ -102,6 +102,8 @@ def _blocks(buf, lay):
             buf[:, lay[14]:lay[14] + N_ACC])
 
 
+# The parallel loops call it with np.int64(b): a prange index is unsigned, and numba would compile a second copy of
+# the whole plant step for it (seconds of a cold start).
 @njit(**K._NO_REFCOUNT)
 def _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
     # few arguments on purpose: each array argument is a 7-word struct passed on the stack
@@ -131,7 +133,7 @@ def _env_step_serial(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
 @njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), parallel=True)
 def _env_step_parallel(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
     for b in numba.prange(buf.shape[0]):
-        _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
+        _one(np.int64(b), buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
 # fastmath=False stated: numba would otherwise compile it with its caller's fast-math flags, and contracted
@@ -174,15 +176,23 @@ def apply_actions(actions, normalized, max_rate_g_s, buf, col_adblue, col_action
 
 
 @njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH))
-def vector_outputs(buf, lay, k, length, info, step_index, truncated):
+def vector_outputs(buf, lay, k, length, info, step_index, truncated, skip):
     """After a step: advance the step counters ``k``, set ``truncated`` (k >= length) and ``step_index`` (= k), and
-    fill ``info`` rows 0-5 with nox, nh3 and adblue cost, tailpipe NOx and NH3 [ppm] and the reward. Returns whether
-    any plant's cycle ended."""
+    fill ``info`` rows 0-5 with nox, nh3 and adblue cost, tailpipe NOx and NH3 [ppm] and the reward. Plants with
+    ``skip[b]`` did not step (their autoreset step): counters kept, not truncated, info rows 0. Returns whether any
+    plant's cycle ended."""
     out = buf[:, lay[9]:lay[9] + _N_OUTPUTS]
     terms = buf[:, lay[12]:lay[12] + N_TERMS]
     reward = buf[:, lay[13]]
     ended = False
     for b in range(buf.shape[0]):
+        if skip[b]:
+            step_index[b] = k[b]
+            truncated[b] = False
+            for r in range(6):
+                info[r, b] = 0.0
+            info[6, b] = 0.0
+            continue
         kb = k[b] + 1
         k[b] = kb
         step_index[b] = kb
@@ -212,28 +222,31 @@ def _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, 
 
 
 # One compiled call per vector-env step (each numba call costs a few microseconds of argument checks, and the
-# Python glue between calls as much again): actions, noise, the plants, the bookkeeping. Returns -(number of
-# non-finite actions) if there are any (nothing done), else 1 if a plant's cycle ended, else 0.
+# Python glue between calls as much again): actions, noise, the plants, the bookkeeping. Plants with skip[b] are not
+# stepped (Gymnasium's NEXT_STEP autoreset: they were just reset). Returns -(number of non-finite actions) if there
+# are any (nothing done), else 1 if a plant's cycle ended, else 0.
 @njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH))
 def vector_step_serial(actions, normalized, max_rate_g_s, buf, lay, obs, drive, base, k, length, row, rng, noise,
-                       noise_idx, dt, info, step_index, truncated):
+                       noise_idx, dt, info, step_index, truncated, skip):
     bad = _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, info[6])
     if bad > 0:
         return -bad
     for b in range(buf.shape[0]):
-        _one(b, buf, lay, obs, drive, row, noise, noise_idx, dt)
-    return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated) else 0
+        if not skip[b]:
+            _one(b, buf, lay, obs, drive, row, noise, noise_idx, dt)
+    return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated, skip) else 0
 
 
 @njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), parallel=True)
 def vector_step_parallel(actions, normalized, max_rate_g_s, buf, lay, obs, drive, base, k, length, row, rng, noise,
-                         noise_idx, dt, info, step_index, truncated):
+                         noise_idx, dt, info, step_index, truncated, skip):
     bad = _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, info[6])
     if bad > 0:
         return -bad
     for b in numba.prange(buf.shape[0]):
-        _one(b, buf, lay, obs, drive, row, noise, noise_idx, dt)
-    return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated) else 0
+        if not skip[b]:
+            _one(np.int64(b), buf, lay, obs, drive, row, noise, noise_idx, dt)
+    return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated, skip) else 0
 
 
 # column blocks of the PlantBatch buffer: (name, width or None for n_cells)
@@ -254,6 +267,10 @@ class _ThreadingChooser:
     ``PROBE_EVERY`` steps (the first call of each is skipped: it may include JIT compilation or cache loading).
     The estimate follows a faster time at once and a slower one gradually, so one slow outlier (a descheduled
     thread) does not keep the step on the slower variant for many probes.
+
+    The serial variant runs first: its machine code is mostly the per-plant step, which any step needs, so the first
+    step compiles little else; the threaded variant is compiled when it is first probed (the third step). With one
+    numba thread (``NUMBA_NUM_THREADS=1``) there is nothing to choose: the chooser is not used.
     """
 
     PROBE_EVERY = 64  # steps between re-timings of the slower variant [chosen: costs ~1 % when it is 2x slower]
@@ -266,10 +283,10 @@ class _ThreadingChooser:
 
     def pick(self) -> int:
         """1 for the threaded step, 0 for the serial one."""
-        if self.calls[1] < 2:
-            return 1
         if self.calls[0] < 2:
             return 0
+        if self.calls[1] < 2:
+            return 1
         best = 1 if self.mean_s[1] <= self.mean_s[0] else 0
         self.since_probe += 1
         if self.since_probe >= self.PROBE_EVERY:
@@ -307,7 +324,8 @@ class PlantBatch:
         self.obs = np.zeros((n, obs_dim), dtype=np.float32)
         self.nh3_sensor = bool(nh3_sensor)
         self.privileged = bool(privileged)
-        self._chooser = _ThreadingChooser() if n >= K.PARALLEL_MIN_BATCH else None
+        threads = numba.config.NUMBA_NUM_THREADS > 1
+        self._chooser = _ThreadingChooser() if n >= K.PARALLEL_MIN_BATCH and threads else None
         self._noise_rows = np.arange(n, dtype=np.int64)
         self.col_adblue = offsets[3] + K.I_ADBLUE
         self.col_action = offsets[9]
@@ -320,7 +338,10 @@ class PlantBatch:
         normalised action must already be in ``inputs[:, I_ADBLUE]`` and ``action_norm``."""
         chooser = self._chooser
         if chooser is None:
-            _env_step_serial(self.buf, self.layout, self.obs, drive, row_idx, noise_tab, noise_idx, dt)
+            if self.n == 1:  # the single environment: the per-plant step itself (one compiled function less)
+                _one(0, self.buf, self.layout, self.obs, drive, row_idx, noise_tab, noise_idx, dt)
+            else:
+                _env_step_serial(self.buf, self.layout, self.obs, drive, row_idx, noise_tab, noise_idx, dt)
             return
         mode = chooser.pick()
         start = time.perf_counter()
@@ -331,13 +352,14 @@ class PlantBatch:
     def vector_step(self, actions: np.ndarray, normalized: bool, max_rate_g_s: float, drive: np.ndarray,
                     base: np.ndarray, k: np.ndarray, length: np.ndarray, row: np.ndarray, rng: np.random.Generator,
                     noise: np.ndarray, dt: float, info: np.ndarray, step_index: np.ndarray,
-                    truncated: np.ndarray) -> int:
+                    truncated: np.ndarray, skip: np.ndarray) -> int:
         """The vector environment's step in one compiled call (see :func:`vector_step_serial`): ``actions`` (B,)
         raw, plant b on drive row ``base[b] + k[b]`` (written to ``row``) and noise row b of ``noise`` (drawn from
-        ``rng``); advances ``k``; fills ``info`` (7, B), ``step_index`` and ``truncated``. Returns -(number of
-        non-finite actions) if any (nothing done), else 1 if a cycle ended, else 0."""
+        ``rng``); advances ``k``; fills ``info`` (7, B), ``step_index`` and ``truncated``; plants with ``skip[b]``
+        are left as they are. Returns -(number of non-finite actions) if any (nothing done), else 1 if a cycle
+        ended, else 0."""
         args = (actions, normalized, max_rate_g_s, self.buf, self.layout, self.obs, drive, base, k, length, row, rng,
-                noise, self._noise_rows, dt, info, step_index, truncated)
+                noise, self._noise_rows, dt, info, step_index, truncated, skip)
         chooser = self._chooser
         if chooser is None:
             return vector_step_serial(*args)

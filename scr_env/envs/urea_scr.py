@@ -67,7 +67,7 @@ class UreaSCREnv(gym.Env):
 
     ## Rewards
     An economic cost in grams of AdBlue equivalent (weights ``reward_weights``, see
-    :class:`scr_env.envs.core.RewardWeights`): per step
+    :class:`scr_env.envs.kpis.RewardWeights`): per step
     ``r = -(20 * tailpipe NOx [g as NO2] + 60 * NH3 slip [g] + 1 * AdBlue [g])``. Each term is in ``info``
     (``nox_cost``, ``nh3_cost``, ``adblue_cost``, all <= 0).
 
@@ -84,7 +84,10 @@ class UreaSCREnv(gym.Env):
     Truncation at the end of the drive cycle (3600 steps for the WHTC at 0.5 s). The episode never terminates.
     At the truncating step ``info["episode_kpis"]`` holds ``nox_conversion``, ``engine_out_nox_g_per_kwh``,
     ``tailpipe_nox_g_per_kwh``, ``mean_nh3_slip_ppm``, ``peak_nh3_slip_ppm``, ``adblue_g``, ``engine_work_kwh`` and
-    more (see :func:`scr_env.envs.core.episode_kpis`). Stepping after truncation without ``reset`` raises.
+    more (see :func:`scr_env.envs.kpis.episode_kpis`). Stepping after truncation without ``reset`` raises. An episode
+    ended early by a wrapper (``gym.make(..., max_episode_steps=N)`` adds ``TimeLimit``) has its KPIs from
+    :meth:`episode_kpis` (``env.unwrapped.episode_kpis()``), or in ``info`` with the outermost wrapper
+    :class:`scr_env.wrappers.RecordEpisodeKPIs`.
 
     ## Arguments
     ``gymnasium.make("scr_env/UreaSCR-v0", **kwargs)`` with:
@@ -249,8 +252,20 @@ class UreaSCREnv(gym.Env):
                          info["tailpipe_nh3_ppm"], rate, float(self._drive[k, 1]), out[K.O_COV])
         if truncated:
             self._needs_reset = True
-            info["episode_kpis"] = core.episode_kpis(b.acc[0], float(out[K.O_STORED]))
+            info["episode_kpis"] = core.episode_kpis(b.acc[0], out[K.O_STORED])
         return b.obs[0].copy(), buf[0, b.col_reward], False, truncated, info
+
+    def episode_kpis(self) -> dict[str, float]:
+        """The KPIs of the current (or just ended) episode so far: what ``info["episode_kpis"]`` holds at the end
+        of the cycle, available after any step, e.g. when ``TimeLimit`` (``gym.make(..., max_episode_steps=N)``) or
+        the caller ends the episode early (see also :class:`scr_env.wrappers.RecordEpisodeKPIs`). RuntimeError
+        before the first ``reset``."""
+        if self.trace is None:
+            raise RuntimeError("episode_kpis() needs an episode: call reset() first")
+        b = self._batch
+        # NH3 stored now: the plant step's figure, or before the first step the initial one
+        stored = float(b.out[0, K.O_STORED]) if self._k > 0 else float(b.acc[0, core.A_STORED0_MOL])
+        return core.episode_kpis(b.acc[0], stored)
 
     # ------------------------------------------------------------------------------------------- introspection
     @property

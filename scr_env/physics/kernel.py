@@ -304,7 +304,7 @@ def _plant_step_serial(theta, temperature_k, sensor_state, inputs, dt, cat_param
 @njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), parallel=True)
 def _plant_step_parallel(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     for b in numba.prange(theta.shape[0]):
-        _plant_step_b(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
+        _plant_step_b(np.int64(b), theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
 
 
 # fastmath=False on purpose: the MPC's temperature forecasts (control.models.FirstPrinciplesModel) were computed
