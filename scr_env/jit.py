@@ -158,7 +158,10 @@ def njit(func: Callable | None = None, /, *, cache: bool = True, **options: Any)
         if directory is None:
             return numba.njit(**options)(f)
         with _lock, _numba_cache_dir(directory):
-            return numba.njit(cache=True, **options)(f)
+            try:
+                return numba.njit(cache=True, **options)(f)
+            except RuntimeError:  # no source file to key a cache on (a function typed at a prompt): in memory
+                return numba.njit(**options)(f)
 
     return decorate if func is None else decorate(func)
 

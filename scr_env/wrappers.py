@@ -33,7 +33,7 @@ class RecordEpisodeKPIs(gym.Wrapper):
 
     def __init__(self, env: gym.Env) -> None:
         if not callable(getattr(env.unwrapped, "episode_kpis", None)):
-            raise ValueError(f"RecordEpisodeKPIs needs an environment with an episode_kpis() method (such as "
+            raise TypeError(f"RecordEpisodeKPIs needs an environment with an episode_kpis() method (such as "
                              f"scr_env/UreaSCR-v0); {type(env.unwrapped).__name__} has none")
         super().__init__(env)
 

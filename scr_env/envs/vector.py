@@ -1,6 +1,7 @@
 """The native vector environment: N catalysts stepped by one call of the compiled physics."""
 from __future__ import annotations
 
+import math
 import sys
 from typing import Any, ClassVar
 
@@ -9,7 +10,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from scr_env.cycles import ExhaustTrace
+from scr_env.cycles import MAX_TRACE_SAMPLES, ExhaustTrace
 from scr_env.envs import core
 from scr_env.envs.config import O2_FRACTION, flag, make_config, reset_coverage, reset_options
 from scr_env.params import pack
@@ -136,6 +137,14 @@ class UreaSCRVectorEnv(VectorEnv):
                 self._configs[key] = make_config(cycle=c, **kwargs)
         self._cycle_keys = [self._key(c) for c in cycles]
         cfg = self._configs[self._cycle_keys[0]]
+        if any(c.cycle == "random" for c in self._configs.values()):
+            # the pool of random cycles shares one drive table: bounded as one trace is (scr_env.cycles)
+            rows = int(random_cycle_pool) * math.floor(cfg.random_cycle_duration_s / cfg.dt + 1e-9)
+            if rows > MAX_TRACE_SAMPLES:
+                raise ValueError(f"random_cycle_pool = {random_cycle_pool} random cycles of "
+                                 f"{cfg.random_cycle_duration_s:g} s at dt = {cfg.dt:g} s would hold {rows:,} samples, "
+                                 f"more than MAX_TRACE_SAMPLES = {MAX_TRACE_SAMPLES:,}; use a smaller pool, shorter "
+                                 f"cycles or a larger dt")
         self.config = cfg
         self.dt = cfg.dt
         self.max_rate_g_s = cfg.dosing.max_rate_g_s
