@@ -245,7 +245,7 @@ _RANGES = (
 # ----------------------------------------------------------------------------------------------------------- helpers
 def _check_samples(n: float, what: str, dt: float | None = None) -> None:
     """ValueError if a trace of ``n`` samples would exceed :data:`MAX_TRACE_SAMPLES` (checked before allocating)."""
-    if n > MAX_TRACE_SAMPLES:
+    if not n <= MAX_TRACE_SAMPLES:  # also NaN and inf (a denormal dt)
         hint = f" at dt = {dt:g} s" if dt is not None else ""
         raise ValueError(f"{what}{hint} would have {n:,.0f} samples, more than MAX_TRACE_SAMPLES = "
                          f"{MAX_TRACE_SAMPLES:,} (about {MAX_TRACE_SAMPLES * 9 * 8 / 1e6:.0f} MB per trace); use a "
@@ -356,8 +356,8 @@ def _trace_from_operating_points(
     name: str, dt: float, speed_1hz: np.ndarray, torque_1hz: np.ndarray, engine: EngineParams, cold_start: bool
 ) -> ExhaustTrace:
     """1 Hz operating points (row k at t = k s) -> sampled engine-out model -> DOC/DPF -> SCR-inlet trace."""
+    _check_samples(speed_1hz.size / dt, f"the {name} cycle ({speed_1hz.size} s)", dt)
     n_steps = math.floor(speed_1hz.size / dt + 1e-9)
-    _check_samples(n_steps, f"the {name} cycle ({speed_1hz.size} s)", dt)
     time = np.arange(n_steps, dtype=np.float64) * dt
     grid = np.arange(speed_1hz.size, dtype=np.float64)
     speed = np.interp(time, grid, speed_1hz)
@@ -478,7 +478,7 @@ def _rate_limit(setpoint: np.ndarray, rate_per_step: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=32)
 def _random_trace(duration_s: float, seed: int, dt: float, engine: EngineParams, cold_start: bool) -> ExhaustTrace:
-    _check_samples(math.floor(duration_s / dt + 1e-9), f"a random cycle of {duration_s:g} s", dt)
+    _check_samples(duration_s / dt, f"a random cycle of {duration_s:g} s", dt)
     rng = np.random.default_rng(seed)
     n_seconds = math.ceil(duration_s)
     n_set, tau_set = _random_targets(n_seconds + 1, rng)
@@ -600,7 +600,7 @@ def _from_csv_uncached(path: Path, dt: float) -> ExhaustTrace:
             f"the temperatures in degC (a hot log in degC reads as {t_median:g} K)? They are read as kelvin; convert "
             f"with T[K] = T[degC] + 273.15", UserWarning, stacklevel=4)
     t_rel = time - time[0]
-    _check_samples(math.floor(t_rel[-1] / dt + 1e-9) + 1, f"{path} (spanning {t_rel[-1]:g} s)", dt)
+    _check_samples(t_rel[-1] / dt + 1.0, f"{path} (spanning {t_rel[-1]:g} s)", dt)
     n_steps = math.floor(t_rel[-1] / dt + 1e-9) + 1
     grid = np.arange(n_steps, dtype=np.float64) * dt
 

@@ -1,7 +1,6 @@
 """The native vector environment: N catalysts stepped by one call of the compiled physics."""
 from __future__ import annotations
 
-import math
 import sys
 from typing import Any, ClassVar
 
@@ -139,10 +138,10 @@ class UreaSCRVectorEnv(VectorEnv):
         cfg = self._configs[self._cycle_keys[0]]
         if any(c.cycle == "random" for c in self._configs.values()):
             # the pool of random cycles shares one drive table: bounded as one trace is (scr_env.cycles)
-            rows = int(random_cycle_pool) * math.floor(cfg.random_cycle_duration_s / cfg.dt + 1e-9)
-            if rows > MAX_TRACE_SAMPLES:
+            rows = int(random_cycle_pool) * (cfg.random_cycle_duration_s / cfg.dt)
+            if not rows <= MAX_TRACE_SAMPLES:
                 raise ValueError(f"random_cycle_pool = {random_cycle_pool} random cycles of "
-                                 f"{cfg.random_cycle_duration_s:g} s at dt = {cfg.dt:g} s would hold {rows:,} samples, "
+                                 f"{cfg.random_cycle_duration_s:g} s at dt = {cfg.dt:g} s would hold {rows:,.0f} samples, "
                                  f"more than MAX_TRACE_SAMPLES = {MAX_TRACE_SAMPLES:,}; use a smaller pool, shorter "
                                  f"cycles or a larger dt")
         self.config = cfg
