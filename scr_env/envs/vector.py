@@ -141,9 +141,9 @@ class UreaSCRVectorEnv(VectorEnv):
             rows = int(random_cycle_pool) * (cfg.random_cycle_duration_s / cfg.dt)
             if not rows <= MAX_TRACE_SAMPLES:
                 raise ValueError(f"random_cycle_pool = {random_cycle_pool} random cycles of "
-                                 f"{cfg.random_cycle_duration_s:g} s at dt = {cfg.dt:g} s would hold {rows:,.0f} samples, "
-                                 f"more than MAX_TRACE_SAMPLES = {MAX_TRACE_SAMPLES:,}; use a smaller pool, shorter "
-                                 f"cycles or a larger dt")
+                                 f"{cfg.random_cycle_duration_s:g} s at dt = {cfg.dt:g} s would hold {rows:,.0f} "
+                                 f"samples, more than MAX_TRACE_SAMPLES = {MAX_TRACE_SAMPLES:,}; use a smaller pool, "
+                                 f"shorter cycles or a larger dt")
         self.config = cfg
         self.dt = cfg.dt
         self.max_rate_g_s = cfg.dosing.max_rate_g_s
