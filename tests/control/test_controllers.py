@@ -56,7 +56,7 @@ def test_failing_solve_returns_fallback_and_is_counted():
 
 def test_model_error_falls_back_not_raises():
     mpc = _identified_mpc()
-    mpc.model.prepare = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken model"))
+    mpc.estimator.make_step = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken model"))
     res = evaluate(mpc, cycles=("whsc",), max_steps=5)[0]
     assert res.stats["solver_failures"] == 5
 
@@ -69,7 +69,7 @@ def test_slip_guard_doses_nothing_on_failed_solves_while_the_nh3_sensor_reads_sl
     env = UreaSCREnv(cycle="whsc", nh3_sensor=True)
     env.reset(seed=0)
     mpc.attach(env)
-    mpc.model.prepare = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken model"))  # every solve fails
+    mpc.estimator.make_step = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken model"))  # every solve fails
     slipping = np.array([500.0, 550.0, 6.0, 30.0, 0.0, 25.0])
     clean = slipping.copy()
     clean[5] = 2.0
@@ -108,7 +108,7 @@ def test_oracle_collocation_equals_plant_step():
     # the oracle's stage parameters at those end-of-step temperatures
     model._env = type("E", (), {"state": {"nh3_coverage": theta, "temperature_k": temps}})()
     model.use_preview = False
-    _, pst, _ = model.prepare(None, 0.0, d[None, :], h, h)
+    pst, _ = model.stage_parameters(None, d[None, :], h, h)
     xs, us = ca.SX.sym("x", n), ca.SX.sym("u")
     r = ca.Function("r", [xs, us], [model.residual(xs, ca.DM(theta), us, d, ca.DM(pst[0]), h),
                                     model.outputs(xs, None, us, d, ca.DM(pst[0]))])
@@ -210,11 +210,11 @@ def test_mpc_rejects_bad_observations_before_solving_or_counting():
     mpc = _identified_mpc()
     for k, o in enumerate(obs):
         if k == 3:
-            before = (_mpc_counters(mpc), mpc.model.ekf_.x_.copy(), mpc.model.ekf_.P_.copy(), mpc._u_prev)
+            before = (_mpc_counters(mpc), mpc.estimator.ekf_.x_.copy(), mpc.estimator.ekf_.P_.copy(), mpc._u_prev)
             for bad, err, match in _bad_observations() + [(np.stack([o, o]), ValueError, "single plant")]:
                 with pytest.raises(err, match=match):
                     mpc.predict(bad)
-            after = (_mpc_counters(mpc), mpc.model.ekf_.x_, mpc.model.ekf_.P_, mpc._u_prev)
+            after = (_mpc_counters(mpc), mpc.estimator.ekf_.x_, mpc.estimator.ekf_.P_, mpc._u_prev)
             assert before[0] == after[0] and np.array_equal(before[1], after[1])
             assert np.array_equal(before[2], after[2]) and before[3] == after[3]
         a, _ = mpc.predict(o, episode_start=np.array([k == 0]))
@@ -257,7 +257,7 @@ def test_mpc_falls_back_on_numerical_failures_only(error, counted):
     def broken(*a, **k):
         raise error
 
-    mpc.model.prepare = broken
+    mpc.estimator.make_step = broken
     if counted:
         a, _ = mpc.predict(OBS, episode_start=np.array([True]))
         assert action_to_rate(a[0]) == pytest.approx(lut.dose_g_s(OBS), rel=1e-6)
@@ -291,7 +291,7 @@ def test_identified_nmpc_survives_a_nan_reading_on_the_gym_env():
             actions.append(a)
             obs, *_ = env.step(a)
         env.close()
-        return np.array(actions), mpc.stats()["solver_failures"], mpc.model.ekf_.x_
+        return np.array(actions), mpc.stats()["solver_failures"], mpc.estimator.ekf_.x_
 
     clean, fail_clean, x_clean = run(False)
     dirty, fail_dirty, x_dirty = run(True)

@@ -83,7 +83,7 @@ def test_ekf_reads_the_nh3_sensor_when_told():
     mpc = _nh3_sensor_mpc()
     res = evaluate(mpc, cycles=("whsc",), max_steps=20, env_kwargs={"nh3_sensor": True})[0]
     assert res.stats["solves"] == 20 and res.stats["solver_failures"] == 0
-    assert mpc.model.ekf_.R_.shape == (2, 2)
+    assert mpc.estimator.ekf_.R_.shape == (2, 2)
 
 
 def test_nh3_sensor_model_on_an_env_without_the_sensor_is_refused():
