@@ -24,7 +24,7 @@ from control.baselines import FeedforwardPI, LookupTableDosing
 from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM
 
 __all__ = ["CONTROLLERS", "IDENTIFIED_VARIANTS", "RL_NAMES", "available_rl", "black_box_mpc", "greybox_record",
-           "greybox_validation", "identified_mpc", "identify_greybox", "make_controller", "oracle_mpc"]
+           "greybox_records", "greybox_validation", "identified_mpc", "identify_greybox", "make_controller", "oracle_mpc"]
 
 #: random cycles of the identification experiments (never the benchmark cycles)
 IDENT_SEEDS: tuple[int, ...] = (1, 2)
@@ -78,18 +78,24 @@ GREYBOX_OUTPUTS = ("tailpipe_nox", "nh3", "sensor")
 
 
 # ------------------------------------------------------------------------------------------------ identification
-def identify_greybox(seeds: tuple[int, ...] = IDENT_SEEDS,
-                     excitation: tuple[float, float, float, float] = IDENT_EXCITATION) -> Any:
-    """The fitted :class:`ident.greybox.StorageGreyBox` of the identified-model NMPC: open-loop excitation records on
-    the random cycles of ``seeds`` (feedforward dose at ANR 1 times ``1 + RandomSteps(*excitation)``), fitted by
-    simulation-error least squares. Deterministic for given arguments."""
+def greybox_records(seeds: tuple[int, ...] = IDENT_SEEDS,
+                    excitation: tuple[float, float, float, float] = IDENT_EXCITATION) -> list[tuple[Any, Any]]:
+    """The grey-box identification data: an open-loop excitation record ``(u, y)`` on the random cycle of each seed
+    (feedforward dose at ANR 1 times ``1 + RandomSteps(*excitation)``; :mod:`ident.plant_data` signals)."""
     from ident.excitation import RandomSteps
-    from ident.greybox import StorageGreyBox
     from ident.plant_data import excitation_dataset
 
     exc = RandomSteps(*excitation)
-    recs = [excitation_dataset("random", seed=s, base_anr=1.0, excitation=exc) for s in seeds]
-    return StorageGreyBox().fit([(r.u, r.y) for r in recs], None)
+    return [(r.u, r.y) for r in (excitation_dataset("random", seed=s, base_anr=1.0, excitation=exc) for s in seeds)]
+
+
+def identify_greybox(seeds: tuple[int, ...] = IDENT_SEEDS,
+                     excitation: tuple[float, float, float, float] = IDENT_EXCITATION) -> Any:
+    """The fitted :class:`ident.greybox.StorageGreyBox` of the identified-model NMPC: fitted by simulation-error
+    least squares to :func:`greybox_records`. Deterministic for given arguments."""
+    from ident.greybox import StorageGreyBox
+
+    return StorageGreyBox().fit(greybox_records(seeds, excitation), None)
 
 
 def greybox_validation(model: Any, excitation: tuple[float, float, float, float] = IDENT_EXCITATION,
@@ -111,11 +117,14 @@ def greybox_validation(model: Any, excitation: tuple[float, float, float, float]
 
 def greybox_record(seeds: tuple[int, ...] = IDENT_SEEDS,
                    excitation: tuple[float, float, float, float] = IDENT_EXCITATION) -> tuple[Any, dict[str, Any]]:
-    """:func:`identify_greybox` and :func:`greybox_validation`: the fitted model and its JSON record (``params``,
-    ``sensor_gains``, ``n_cells``, ``dt``, ``fit_seconds`` -- identification and validation --, ``data`` and the
-    validation figures), the ``identified_model`` of the benchmarks' JSON."""
+    """The fitted grey-box model (as :func:`identify_greybox`) and its JSON record: ``params``, ``sensor_gains``,
+    ``n_cells``, ``dt``, ``fit_seconds`` (fit and validation, not the data), ``data`` and the validation figures of
+    :func:`greybox_validation` -- the ``identified_model`` of the benchmarks' JSON."""
+    from ident.greybox import StorageGreyBox
+
+    records = greybox_records(seeds, excitation)
     t0 = time.perf_counter()
-    model = identify_greybox(seeds, excitation)
+    model = StorageGreyBox().fit(records, None)
     validation = greybox_validation(model, excitation)
     return model, {"params": model.params_.tolist(), "sensor_gains": model.sensor_gains_.tolist(),
                    "n_cells": model.n_cells, "dt": model.dt, "fit_seconds": time.perf_counter() - t0,

@@ -48,6 +48,7 @@ import casadi as ca
 import numpy as np
 
 from control.baselines import LookupTableDosing
+from control.estimation import StateEstimator
 from control.protocol import (
     DEFAULT_MAX_RATE_G_S,
     N_BASE_OBSERVATION,
@@ -57,7 +58,6 @@ from control.protocol import (
     observation_size,
     rate_to_action,
 )
-from control.estimation import StateEstimator
 from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM, NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
 
 #: disturbance columns per stage, as ``UreaSCREnv.disturbance_preview``: flow mol/s, inlet T K, NOx ppm, NO2 frac

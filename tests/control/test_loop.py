@@ -1,10 +1,10 @@
-"""identify_then_control: the gap-closed measure respects the slip limit; held-out segments; the output stack."""
+"""control.loop (the identify-then-control loop): the gap-closed measure respects the slip limit; held-out segments; the output stack."""
 from __future__ import annotations
 
 import casadi as ca
 import numpy as np
 
-from experiments.identify_then_control import SLIP_LIMIT_PPM, gap_closed, held_out
+from control.loop import SLIP_LIMIT_PPM, gap_closed, held_out
 from ident.linear import ARX
 from ident.stack import OutputStack
 
