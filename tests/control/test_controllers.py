@@ -297,3 +297,39 @@ def test_identified_nmpc_survives_a_nan_reading_on_the_gym_env():
     dirty, fail_dirty, x_dirty = run(True)
     assert np.array_equal(clean, dirty) and fail_clean == fail_dirty and np.array_equal(x_clean, x_dirty)
     assert np.all(np.isfinite(x_dirty)) and action_to_rate(dirty[-1][0]) > 0.0
+
+
+# ------------------------------------------------------------------------------------------------ feedforward
+def test_one_feedforward_law_for_every_feedforward():
+    """The look-up table, FeedforwardDosing and the identification data's dosing compute their dose with
+    feedforward_dose_g_s: the same numbers for the same ANR."""
+    from control.baselines import FeedforwardDosing, feedforward_dose_g_s
+    from ident.plant_data import feedforward_adblue_g_s
+    from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+
+    obs = np.array([800.0, 600.0, 8.0, 30.0, 0.0])
+    ref = 0.9 * (800.0 * 1e-6 * 8.0) / NH3_MOL_PER_G_ADBLUE
+    assert feedforward_dose_g_s(800.0, 8.0, 0.9) == ref == feedforward_adblue_g_s(800.0, 8.0, 0.9)
+    assert FeedforwardDosing(0.9).dose_g_s(obs) == ref
+    lut = LookupTableDosing()
+    assert lut.dose_g_s(obs) == min(feedforward_dose_g_s(800.0, 8.0, lut.target_anr(600.0, 8.0)), 3.0)
+    assert feedforward_dose_g_s(-5.0, 8.0) == 0.0 and feedforward_dose_g_s(500.0, -1.0) == 0.0
+    np.testing.assert_array_equal(feedforward_dose_g_s(np.array([800.0, 0.0]), 8.0, 0.9), [ref, 0.0])
+
+
+def test_feedforward_dosing_ramp_and_checks():
+    from control.baselines import FeedforwardDosing
+
+    ramp = FeedforwardDosing(anr=0.9, ramp_start_k=473.15, ramp_width_k=50.0)
+    assert ramp.target_anr(450.0) == 0.0 and ramp.target_anr(600.0) == 0.9
+    assert ramp.target_anr(498.15) == pytest.approx(0.45)
+    a, _ = ramp.predict(np.stack([OBS, OBS]))
+    assert a.shape == (2, 1)
+    res = evaluate(ramp, cycles=("whsc",), max_steps=20)[0]
+    assert res.timing["policy_time_ms_median"] >= 0
+    for bad in ({"anr": -0.1}, {"anr": float("nan")}, {"ramp_start_k": 473.0, "ramp_width_k": 0.0},
+                {"max_rate_g_s": 0.0}):
+        with pytest.raises(ValueError):
+            FeedforwardDosing(**bad)
+    with pytest.raises(ValueError, match="NaN"):
+        ramp.predict(np.array([np.nan, 550.0, 6.0, 30.0, 0.0]))
