@@ -106,7 +106,7 @@ class LookupTableDosing:
     def target_anr(self, inlet_temperature_k: float, exhaust_flow_mol_s: float) -> float:
         """Target ANR [-] at an inlet temperature [K] and exhaust flow [mol/s]."""
         a = float(np.interp(inlet_temperature_k - 273.15, self.temperatures_c, self.anr))
-        fl, fm = zip(*self.flow_derate)
+        fl, fm = zip(*self.flow_derate, strict=False)
         return self.anr_scale * a * float(np.interp(exhaust_flow_mol_s, fl, fm))
 
     def dose_g_s(self, observation: np.ndarray) -> float:

@@ -141,7 +141,8 @@ class ExtendedKalmanFilter:
             return float(a) * np.eye(n)
         if a.ndim == 1:
             if a.shape != (n,):
-                raise ValueError(f"{name} must have {n} variances (one per {'measured output' if name == 'measurement_noise' else 'state'}), got {a.shape[0]}")
+                per = "measured output" if name == "measurement_noise" else "state"
+                raise ValueError(f"{name} must have {n} variances (one per {per}), got {a.shape[0]}")
             if not np.all(a > 0 if definite else a >= 0):
                 raise ValueError(f"{name} variances must be {sign}, got {a.tolist()}")
             return np.diag(a)
@@ -361,7 +362,7 @@ class ObservationEKF:
         u_now = np.asarray(self.signals.inputs(applied_dose_g_s, d_now), dtype=np.float64)
         if self._u_last is not None:
             self.ekf_.step(u_now, np.array([self.signals.output_to_model(obs[j], k)
-                                            for k, j in zip(self.measured_, self.measured_obs)]))
+                                            for k, j in zip(self.measured_, self.measured_obs, strict=True)]))
         self._u_last = u_now
         return self.ekf_.x_.copy()
 

@@ -289,6 +289,8 @@ def comparison_table(results: Iterable[EpisodeResult] | dict, kpis: Iterable[str
                     vals.append("-" if math.isnan(v) else f"{v:.3g}" if abs(v) < 1 else f"{v:.2f}")
             rows.append([cycle, name] + vals)
     widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(head)]
-    fmt = lambda r: "  ".join(s.ljust(w) if i < 2 else s.rjust(w) for i, (s, w) in enumerate(zip(r, widths)))
+    def fmt(r: list[str]) -> str:
+        return "  ".join(s.ljust(w) if i < 2 else s.rjust(w) for i, (s, w) in enumerate(zip(r, widths, strict=True)))
+
     lines = [fmt(head), "  ".join("-" * w for w in widths)] + [fmt(r) for r in rows]
     return "\n".join(lines)

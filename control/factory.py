@@ -24,7 +24,8 @@ from control.baselines import FeedforwardPI, LookupTableDosing
 from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM
 
 __all__ = ["CONTROLLERS", "IDENTIFIED_VARIANTS", "RL_NAMES", "available_rl", "black_box_mpc", "greybox_record",
-           "greybox_records", "greybox_validation", "identified_mpc", "identify_greybox", "make_controller", "oracle_mpc"]
+           "greybox_records", "greybox_validation", "identified_mpc", "identify_greybox", "make_controller",
+           "oracle_mpc"]
 
 #: random cycles of the identification experiments (never the benchmark cycles)
 IDENT_SEEDS: tuple[int, ...] = (1, 2)

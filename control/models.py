@@ -340,7 +340,7 @@ class IdentifiedModelAdapter:
         last stage is kept, so its expressions are built (and evaluated at every solve) once, not twice."""
         key = (x_next, x, u, d, h)
         last = getattr(self, "_last_stage", None)
-        if last is not None and all(a is b for a, b in zip(last[0], key)):
+        if last is not None and all(a is b for a, b in zip(last[0], key, strict=True)):
             return last[1]
         if self.implicit_stage is not None:
             stage = self.implicit_stage(x_next, x, self.stage_inputs(u, d), h)

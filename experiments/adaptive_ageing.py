@@ -15,19 +15,19 @@ Controllers (both see the measured signals only, every episode a hot start with 
 
 * ``fixed``: :func:`control.factory.identified_mpc` on the fresh-catalyst model, for every cycle.
 * ``adaptive``: :class:`control.adaptive.AdaptiveMPC`, the same MPC (same horizon, weights, solver, EKF noise; its
-  terminal cost, if any, scaled with the capacity exp(d_cap)), whose prediction model carries two drift parameters
-  d = (d_cap, d_act), log retentions relative to the identified model: capacity Omega exp(d_cap) (``p[0] + d_cap``) and activity exp(d_act) on both the SCR and the NH3-oxidation
-  pre-exponentials (``p[5] + d_act``, ``p[7] + d_act``, as ageing scales both in the simulator). A
-  :class:`ident.rpem.parametric.ParametricRPEM` estimates d online at every 0.5 s step from the inputs
-  [upstream NOx ppm, urea g/min of the applied dose (obs[4]), inlet T, flow] and the tailpipe NOx sensor only
-  (model output ``a NOx + b NH3`` with the fitted sensor gains), forgetting factor ``--forgetting`` (0.998, a
-  memory of about 250 s), the estimates clipped to the retention box ``--box`` (0.2 .. 1.05: ageing only removes
-  capacity and activity; a clip rather than the recursion's reject-the-update projection, which froze both
-  estimates whenever one of them sat at a bound). The estimate is carried over from
-  cycle to cycle (the recursion's model state and sensitivities restart with the empty catalyst at each reset,
-  where the plant restarts too). Certainty equivalence at every step: d enters the NLP as stage parameters (and
-  the terminal value of the stored NH3 scales with exp(d_cap)), so the NLP is built once and no rebuild is needed;
-  the EKF's model is refreshed with the current d every ``--ekf-refresh`` steps (cheap: a CasADi function).
+  terminal cost, if any, scaled with the capacity exp(d_cap)), whose prediction model carries two drift parameters d =
+  (d_cap, d_act), log retentions relative to the identified model: capacity Omega exp(d_cap) (``p[0] + d_cap``) and
+  activity exp(d_act) on both the SCR and the NH3-oxidation pre-exponentials (``p[5] + d_act``, ``p[7] + d_act``, as
+  ageing scales both in the simulator). A :class:`ident.rpem.parametric.ParametricRPEM` estimates d online at every
+  0.5 s step from the inputs [upstream NOx ppm, urea g/min of the applied dose (obs[4]), inlet T, flow] and the
+  tailpipe NOx sensor only (model output ``a NOx + b NH3`` with the fitted sensor gains), forgetting factor
+  ``--forgetting`` (0.998, a memory of about 250 s), the estimates clipped to the retention box ``--box`` (0.2 ..
+  1.05: ageing only removes capacity and activity; a clip rather than the recursion's reject-the-update projection,
+  which froze both estimates whenever one of them sat at a bound). The estimate is carried over from cycle to cycle
+  (the recursion's model state and sensitivities restart with the empty catalyst at each reset, where the plant
+  restarts too). Certainty equivalence at every step: d enters the NLP as stage parameters (and the terminal value of
+  the stored NH3 scales with exp(d_cap)), so the NLP is built once and no rebuild is needed; the EKF's model is
+  refreshed with the current d every ``--ekf-refresh`` steps (cheap: a CasADi function).
 
 Outputs to ``runs/adaptive_ageing/<stamp>/``: ``adaptive_ageing.json`` {"cycles": [{"index", "cycle",
 "severity", "true_retention", "fixed": KPIs, "adaptive": KPIs, "estimates": {...}}], "summary": {...}},

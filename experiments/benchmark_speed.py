@@ -7,7 +7,8 @@ Reported:
   resetting at the end of the cycle;
 * ``pendulum_steps_per_s``: ``gymnasium.make("Pendulum-v1")`` the same way (the reference for Python overhead);
 * ``vector_env_steps_per_s``: env-steps per second of the native vector environment with ``num_envs`` plants;
-* ``rpem_samples_per_s`` (and the full degree-2 model) from :func:`ident.speed.measure_rpem_speed` (``--no-rpem``: not measured).
+* ``rpem_samples_per_s`` (and the full degree-2 model) from :func:`ident.speed.measure_rpem_speed` (``--no-rpem``:
+  not measured).
 How they are timed: :mod:`scr_env.speed` (``--rounds`` interleaved rounds of ``--seconds``, medians).
 """
 from __future__ import annotations

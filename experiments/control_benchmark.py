@@ -2,30 +2,30 @@
 
     python -m experiments.control_benchmark [--json PATH] [--quick] [--cycles whtc whsc] [--workers 2] [--seeds 0]
 
-Controllers (built by :func:`control.factory.make_controller`): ``lookup_table`` and ``pi`` (control.baselines), ``mpc_identified`` (NMPC on a grey-box storage model
-identified from open-loop excitation data on random cycles, state by EKF from the measured signals only -- the
-tailpipe NOx sensor and a tailpipe NH3 sensor -- with the cycle preview of the engine-out disturbances as the
-oracle has it), its variants ``mpc_identified_nox_sensor`` (EKF on the NOx sensor alone) and
-``mpc_identified_no_preview`` (NOx sensor alone, the measured disturbances held over the horizon: what a truck
-without an NH3 sensor or route preview can do), ``mpc_oracle`` (NMPC on the first-principles catalyst with
-privileged state and the cycle preview), and the shipped RL policies ``ppo`` / ``sac`` when :mod:`control.rl` provides them (skipped otherwise, and said so). Writes the KPI
-table, a JSON {"cycles": {cycle: {"controllers": {name: KPIs and timings}}}} and plots of the closed-loop
-trajectories to ``runs/control_benchmark/<stamp>/``. ``--quick``: the WHTC only, shorter oracle horizon.
-``--seeds``: the reset seeds (sensor noise) of every episode (default 0); with several, each controller's figures
-are their means and ``per_seed`` lists NOx, slip and failed solves per seed (the plots show the first seed).
+Controllers (built by :func:`control.factory.make_controller`): ``lookup_table`` and ``pi`` (control.baselines),
+``mpc_identified`` (NMPC on a grey-box storage model identified from open-loop excitation data on random cycles, state
+by EKF from the measured signals only -- the tailpipe NOx sensor and a tailpipe NH3 sensor -- with the cycle preview
+of the engine-out disturbances as the oracle has it), its variants ``mpc_identified_nox_sensor`` (EKF on the NOx
+sensor alone) and ``mpc_identified_no_preview`` (NOx sensor alone, the measured disturbances held over the horizon:
+what a truck without an NH3 sensor or route preview can do), ``mpc_oracle`` (NMPC on the first-principles catalyst
+with privileged state and the cycle preview), and the shipped RL policies ``ppo`` / ``sac`` when :mod:`control.rl`
+provides them (skipped otherwise, and said so). Writes the KPI table, a JSON {"cycles": {cycle: {"controllers": {name:
+KPIs and timings}}}} and plots of the closed-loop trajectories to ``runs/control_benchmark/<stamp>/``. ``--quick``:
+the WHTC only, shorter oracle horizon. ``--seeds``: the reset seeds (sensor noise) of every episode (default 0); with
+several, each controller's figures are their means and ``per_seed`` lists NOx, slip and failed solves per seed (the
+plots show the first seed).
 
-Spread over seeds (``--cycles whtc --seeds 0 1 2 3 4 5``): the baselines hardly move (look-up table 0.610-0.612
-g/kWh, 6.8-7.3 ppm). The identified NMPC did, before its slip guard (below): 6.7 ppm mean slip for seed 0 but
-10.8-13.0 ppm for seeds 1-5 (seed 5 also 0.540 g/kWh), and a rounding-level change of the plant moved seed 0 to
-12.5 ppm. The cause: on the WHTC's heat-up at 1500-1740 s the catalyst desorbs its store, the slip bound cannot be
-met, nearly every solve fails, and the look-up-table fallback dosed into the slip (seed 1: 89 of the 102 g of
-AdBlue there). With the slip guard (a failed solve doses nothing while the NH3 sensor reads above 10 ppm, the
-limit, not tuned; :data:`control.factory.SLIP_GUARD_PPM`): WHTC 0.207-0.214 g/kWh at 3.2-4.8 ppm over seeds 0-5 (230-382 failed
-solves), WHSC 0.176-0.184 g/kWh at 0.8-1.1 ppm; after the plant's fast-math compilation (scr_env/physics/backends.py)
-WHTC 0.207-0.215 g/kWh at 3.2-4.6 ppm (220-440 failed solves), WHSC 0.177-0.186 g/kWh at 0.8-1.2 ppm. The guard
-was added after that WHTC diagnosis; on the calibration cycles it leaves the chosen design unchanged (storage
-value 50: 0.286 g/kWh at 1.42 ppm, the guard never acting; it acts at value 100: 0.546 -> 0.681 g/kWh, 16.6 ->
-14.6 ppm).
+Spread over seeds (``--cycles whtc --seeds 0 1 2 3 4 5``): the baselines hardly move (look-up table 0.610-0.612 g/kWh,
+6.8-7.3 ppm). The identified NMPC did, before its slip guard (below): 6.7 ppm mean slip for seed 0 but 10.8-13.0 ppm
+for seeds 1-5 (seed 5 also 0.540 g/kWh), and a rounding-level change of the plant moved seed 0 to 12.5 ppm. The cause:
+on the WHTC's heat-up at 1500-1740 s the catalyst desorbs its store, the slip bound cannot be met, nearly every solve
+fails, and the look-up-table fallback dosed into the slip (seed 1: 89 of the 102 g of AdBlue there). With the slip
+guard (a failed solve doses nothing while the NH3 sensor reads above 10 ppm, the limit, not tuned;
+:data:`control.factory.SLIP_GUARD_PPM`): WHTC 0.207-0.214 g/kWh at 3.2-4.8 ppm over seeds 0-5 (230-382 failed solves),
+WHSC 0.176-0.184 g/kWh at 0.8-1.1 ppm; after the plant's fast-math compilation (scr_env/physics/backends.py) WHTC
+0.207-0.215 g/kWh at 3.2-4.6 ppm (220-440 failed solves), WHSC 0.177-0.186 g/kWh at 0.8-1.2 ppm. The guard was added
+after that WHTC diagnosis; on the calibration cycles it leaves the chosen design unchanged (storage value 50: 0.286
+g/kWh at 1.42 ppm, the guard never acting; it acts at value 100: 0.546 -> 0.681 g/kWh, 16.6 -> 14.6 ppm).
 """
 from __future__ import annotations
 
@@ -110,7 +110,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         for r in ex.map(_job, jobs):
             k = r.kpis
             print(f"  {r.name:15s} {r.cycle} seed {r.seed}: {k.get('tailpipe_nox_g_per_kwh', np.nan):.3f} g/kWh, "
-                  f"{k.get('mean_nh3_slip_ppm', np.nan):.2f} ppm mean slip ({r.stats['wall_time_s']:.0f} s)", flush=True)
+                  f"{k.get('mean_nh3_slip_ppm', np.nan):.2f} ppm mean slip ({r.stats['wall_time_s']:.0f} s)",
+                  flush=True)
             results.append(r)
     order = {n: i for i, n in enumerate([*CORE, *IDENTIFIED_VARIANTS[1:], *rl])}
     results.sort(key=lambda r: (cycles.index(r.cycle) if r.cycle in cycles else 0, order.get(r.name, 99)))
@@ -122,7 +123,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         ctrl = _controllers(results, c, seeds)
         doc["cycles"][c] = {"controllers": ctrl}
         if all(n in ctrl for n in ("lookup_table", "mpc_oracle", "mpc_identified")):
-            lut, orc, idm = (ctrl[n]["tailpipe_nox_g_per_kwh"] for n in ("lookup_table", "mpc_oracle", "mpc_identified"))
+            lut, orc, idm = (ctrl[n]["tailpipe_nox_g_per_kwh"]
+                             for n in ("lookup_table", "mpc_oracle", "mpc_identified"))
             gap = lut - orc
             doc["cycles"][c]["gap_closed_by_mpc_identified"] = (lut - idm) / gap if gap > 0 else float("nan")
             print(f"{c}: mpc_identified closes {doc['cycles'][c]['gap_closed_by_mpc_identified']:.2f} of the "

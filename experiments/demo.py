@@ -69,10 +69,10 @@ def main(argv: list[str] | None = None) -> dict:
     start = time.perf_counter()
     results: dict = {"cycles": {}}
     lines = ["# scr-dosing demo: the simulator over the real WHTC and WHSC", "",
-             "Open-loop dosing map (ANR 0.9 above 250 C, ramp from 200 C), hot start, empty catalyst, "
-             f"sensor-noise seed {args.seed}.", "",
-             "| cycle | NOx conversion | engine-out NOx [g/kWh] | tailpipe NOx [g/kWh] (Euro VI limit) | "
-             "mean / peak NH3 slip [ppm] | AdBlue [g] | work [kWh] |", "|---|---|---|---|---|---|---|"]
+             ("Open-loop dosing map (ANR 0.9 above 250 C, ramp from 200 C), hot start, empty catalyst, "
+              f"sensor-noise seed {args.seed}."), "",
+             ("| cycle | NOx conversion | engine-out NOx [g/kWh] | tailpipe NOx [g/kWh] (Euro VI limit) | "
+              "mean / peak NH3 slip [ppm] | AdBlue [g] | work [kWh] |"), "|---|---|---|---|---|---|---|"]
     ranges = ["", "SCR inlet signals (min / mean / max) against the thesis' WHTC data (Paper III, Table 1):", "",
               "| cycle | inlet NOx [ppm] | exhaust flow [mol/s] | inlet temperature [K] |", "|---|---|---|---|"]
     figures = {}

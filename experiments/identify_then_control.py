@@ -13,9 +13,9 @@
    the black-box models from the tailpipe NOx sensor only, the grey-box model as ``control_benchmark``'s
    ``mpc_identified``: NOx and NH3 sensors, cycle preview), the oracle NMPC on the first-principles model
    (privileged state, cycle preview).
-4. Closed loop on held-out cycles (hot WHTC and WHSC; ``--quick``: the first 600 s of the WHTC) against the look-up table,
-   the PI baseline, the oracle and the shipped RL policies. ``gap_closed[model][cycle]`` is the fraction of the
-   look-up-table-to-oracle gap in tailpipe NOx [g/kWh] that the NMPC on that identified model closes.
+4. Closed loop on held-out cycles (hot WHTC and WHSC; ``--quick``: the first 600 s of the WHTC) against the
+   look-up table, the PI baseline, the oracle and the shipped RL policies. ``gap_closed[model][cycle]`` is the
+   fraction of the look-up-table-to-oracle gap in tailpipe NOx [g/kWh] that the NMPC on that identified model closes.
 
 The episodes run in parallel (local processes, or Ray with ``--ray-address``). Results: JSON, a markdown report,
 identification and closed-loop figures in ``runs/identify_then_control/<stamp>/`` (``--out`` to choose).
@@ -95,23 +95,25 @@ def _report(doc: dict[str, Any], figures: list[Path], out: Path) -> Path:
         flat |= f
         lines.append(f"| {n} | {' | '.join(cells)} | {m.get('fit_seconds', _NAN):.0f} |")
     if flat:
-        lines += ["", f"n/a: the held-out output barely moves (SD below {FLAT_OUTPUT_SD_PPM} ppm), so its FIT "
-                      "(error relative to the output's own variation) says nothing about the model."]
+        lines += ["", (f"n/a: the held-out output barely moves (SD below {FLAT_OUTPUT_SD_PPM} ppm), so its FIT "
+                       "(error relative to the output's own variation) says nothing about the model.")]
     lines += ["", "## Closed loop on held-out cycles", ""]
     for cycle, ctrl in doc["kpis"].items():
-        lines += [f"### {cycle}", "", "| controller | NOx conversion | tailpipe NOx [g/kWh] | mean / peak NH3 slip "
-                  "[ppm] | AdBlue [g] | solve time median / p95 [ms] | solver failures |", "|---|---|---|---|---|---|---|"]
+        lines += [f"### {cycle}", "", ("| controller | NOx conversion | tailpipe NOx [g/kWh] | mean / peak NH3 slip "
+                                      "[ppm] | AdBlue [g] | solve time median / p95 [ms] | solver failures |"),
+                  "|---|---|---|---|---|---|---|"]
         for n, k in ctrl.items():
             solver = (f"{k['solve_time_ms_median']:.1f} / {k.get('solve_time_ms_p95', _NAN):.1f} | "
                       f"{k.get('solver_failures', 0):.0f} |" if np.isfinite(k.get("solve_time_ms_median", np.nan))
                       else "- (no solver) | - |")
             lines.append(f"| {n} | {100 * k.get('nox_conversion', _NAN):.1f} % | "
                          f"{k.get('tailpipe_nox_g_per_kwh', _NAN):.3f} | {k.get('mean_nh3_slip_ppm', _NAN):.1f} / "
-                         f"{k.get('peak_nh3_slip_ppm', _NAN):.0f} | {k.get('adblue_g', _NAN):.0f} | " + solver)
+                         f"{k.get('peak_nh3_slip_ppm', _NAN):.0f} | {k.get('adblue_g', _NAN):.0f} | {solver}")
         lines.append("")
-    lines += ["## Gap closed", "", "Fraction of the look-up-table-to-oracle gap in tailpipe NOx closed by the NMPC on "
-              "each identified model (1 = as good as the oracle, 0 = no better than the look-up table), counted only "
-              f"within the {SLIP_LIMIT_PPM:.0f} ppm mean-slip limit:", "",
+    lines += ["## Gap closed", "", ("Fraction of the look-up-table-to-oracle gap in tailpipe NOx closed by the NMPC on "
+                                    "each identified model (1 = as good as the oracle, 0 = no better than the "
+                                    f"look-up table), counted only within the {SLIP_LIMIT_PPM:.0f} ppm mean-slip "
+                                    "limit:"), "",
               "| model | " + " | ".join(doc["kpis"]) + " |", "|---|" + "---|" * len(doc["kpis"])]
     for model, per in doc["gap_closed"].items():
         lines.append(f"| {model} | " + " | ".join(f"{per.get(c, _NAN):.2f}" for c in doc["kpis"]) + " |")
@@ -137,7 +139,8 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
     ident = {"greybox": gb, "black_box": identify_black_box(out, include_hw=not quick)}
     models = {"greybox": str(greybox.save(out / "model_greybox")), "black_box": ident["black_box"]}
     for n, m in [*ident["black_box"]["models"].items(), ("greybox", {
-            "validation_fit_percent": gb["validation_fit_percent_whtc"], "validation_sd_ppm": gb["validation_sd_ppm_whtc"]})]:
+            "validation_fit_percent": gb["validation_fit_percent_whtc"],
+            "validation_sd_ppm": gb["validation_sd_ppm_whtc"]})]:
         print(f"  {n}: " + (m["error"] if "error" in m else ", ".join(_fit_cells(m)[0])))
     rl, rl_note = available_rl() if include_rl else ([], "RL policies not requested")
     names = ["mpc_oracle", "mpc_greybox", *[f"mpc_{m}" for m in BLACK_BOX if "paths" in ident["black_box"]["models"]
@@ -154,7 +157,8 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
     doc: dict[str, Any] = {"quick": quick, "identification": ident, "kpis": kpis, "gap_closed": gaps,
                            "gap_closed_excluded": excluded, "errors": errors, "skipped": rl_note or None,
                            "run_folder": str(out), "wall_time_s": time.perf_counter() - start}
-    fits = {n: v["validation_fit_percent"] for n, v in ident["black_box"]["models"].items() if "validation_fit_percent" in v}
+    fits = {n: v["validation_fit_percent"] for n, v in ident["black_box"]["models"].items()
+            if "validation_fit_percent" in v}
     fits["greybox"] = gb.get("validation_fit_percent_whtc", {})
     figures = [fit_bar_chart(fits, ("tailpipe_nox", "nh3", "sensor"), "identified models: simulation FIT on held-out "
                              "excitation data (WHTC)", out / "identification_fit.png")]

@@ -35,7 +35,7 @@ def plot(trace: ExhaustTrace, title: str, path: Path) -> None:
     """One figure with the engine power and the four SCR-inlet signals against time."""
     plt = pyplot()
     fig, axes = plt.subplots(len(_SIGNALS), 1, figsize=(10, 9), sharex=True)
-    for ax, (name, label) in zip(axes, _SIGNALS):
+    for ax, (name, label) in zip(axes, _SIGNALS, strict=True):
         ax.plot(trace.time_s, getattr(trace, name), lw=0.8)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)

@@ -50,7 +50,7 @@ def plot(d: dict[str, Any], sims: dict[str, tuple], rows: list[dict], out: Path,
     fits = {r["method"]: r for r in rows}
     names = [m for m in (*METHODS, "midpoint_selected") if m in sims]
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 1.9 * len(names)), sharex=True)
-    for ax, name in zip(np.atleast_1d(axes), names):
+    for ax, name in zip(np.atleast_1d(axes), names, strict=True):
         ax.plot(k, y, "k", lw=1.2, label="simulator")
         ax.plot(k, sims[name][1] * sd + mean, "C1", lw=1.0, label=f"RPEM {name}")
         r = fits[name]
@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{n_est}/{n - n_est} samples, ANR {PAPER4_BASE_ANR} x (1 + {EXCITATION!r}), aligned {align}")
     print(f"{'method':20s} {'params':>6s} | {'FIT est':>8s} {'FIT val':>8s} | {'paper est':>9s} {'paper val':>9s} "
           f"| {'val on Paper IV excitation / production':>40s}")
-    for r, r4, rp in zip(rows, rows4, rows_p):
+    for r, r4, rp in zip(rows, rows4, rows_p, strict=True):
         print(f"{r['method']:20s} {r['n_params']:6d} | {r['fit_estimation']:7.2f}% {r['fit_validation']:7.2f}% | "
               f"{r['published_fit_estimation']:8.2f}% {r['published_fit_validation']:8.2f}% | "
               f"{r4['fit_validation']:29.2f}% / {rp['fit_validation']:6.2f}%")

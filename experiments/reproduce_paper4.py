@@ -41,7 +41,7 @@ def plot(sims: dict[str, Any], out: Path, unit: str = "ppm", label: str = "tailp
         y = sims[key] * sims["scale"] + sims["mean"]
         n0 = 0 if part == "estimation" else len(sims["y_est"])
         k = np.arange(n0, n0 + len(y))
-        for ax, name in zip(axes, MODELS):
+        for ax, name in zip(axes, MODELS, strict=True):
             if name not in sims:
                 continue
             yh = sims[name][idx] * sims["scale"] + sims["mean"]

@@ -150,9 +150,9 @@ def main(argv: Sequence[str] | None = None) -> dict:
     cont: dict[str, list[float]] = {"midpoint": [], "euler": []}
     for seed in range(args.seeds):
         u, y = make_data(seed, continuous=True)
-        for method in cont:
+        for method, errs in cont.items():
             est = estimator(alpha=1.0, method=method).fit(u, y)
-            cont[method].append(float(np.max(np.abs(est.theta_ - THETA_TRUE))))
+            errs.append(float(np.max(np.abs(est.theta_ - THETA_TRUE))))
 
     result = {
         "protocol": "scaled midpoint data, T = 0.1 s, alpha = 1.5 in data and estimator, 10000 samples, one pass; "

@@ -6,7 +6,8 @@ model instead [lit: Upadhyay and Van Nieuwstadt 2006; Schaer et al. 2006], with 
 simulation-error least squares (CasADi AD Jacobians, scipy ``least_squares``) from the signals of
 :mod:`ident.plant_data` data sets only: inputs [inlet NOx ppm, urea g/min, inlet T K, exhaust flow mol/s],
 outputs [tailpipe NOx ppm, NH3 ppm, NOx sensor ppm]. It satisfies :class:`ident.base.DynamicModel`
-(``predict``, ``to_casadi() -> Function('step', [x, u], [x_next, y])``); it lives in :mod:`ident` with the other identified models.
+(``predict``, ``to_casadi() -> Function('step', [x, u], [x_next, y])``); it lives in :mod:`ident` with the other
+identified models.
 
 Structure (n_cells CSTRs in series sharing one lumped solid temperature; gas quasi-steady):
 

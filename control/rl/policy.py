@@ -2,11 +2,11 @@
 
 A shipped policy ``<name>`` is three files in ``control/policies/`` (or any folder):
 
-| file | content | format |
-|---|---|---|
-| ``<name>.zip`` | the stable-baselines3 model (network weights, hyperparameters) | SB3 zip |
-| ``<name>_vecnormalize.npz`` | observation normalisation: ``mean``, ``var`` of the pipeline output | numpy NPZ (no pickle) |
-| ``<name>.json`` | metadata: algorithm, observation layout, env kwargs, pipeline, normaliser settings, exact training command, seed, timesteps, wall time, versions, evaluation | JSON |
+* ``<name>.zip``: the stable-baselines3 model (network weights, hyperparameters), an SB3 zip;
+* ``<name>_vecnormalize.npz``: observation normalisation, ``mean`` and ``var`` of the pipeline output (numpy NPZ, no
+  pickle);
+* ``<name>.json``: metadata (JSON): algorithm, observation layout, env kwargs, pipeline, normaliser settings, exact
+  training command, seed, timesteps, wall time, versions, evaluation.
 
 The SB3 zip holds a JSON of the hyperparameters with a few cloudpickled entries (spaces, schedules) and the weights
 as ``torch.save`` files; that is the stable-baselines3 standard. :func:`load_policy` passes the spaces and the

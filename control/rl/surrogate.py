@@ -332,7 +332,8 @@ class SurrogateVectorEnv(VectorEnv):
 
 class StackedModels:
     """Single-output models side by side as one MIMO model: ``to_casadi`` concatenates their states; every model
-    gets the same inputs and gives one output (for MISO identifiers such as :class:`ident.multiple_model.MultipleModel`).
+    gets the same inputs and gives one output (for MISO identifiers such as
+    :class:`ident.multiple_model.MultipleModel`).
     """
 
     def __init__(self, models: Sequence[Any]) -> None:
@@ -347,7 +348,7 @@ class StackedModels:
         x = ca.SX.sym("x", sum(sizes))
         u = ca.SX.sym("u", nu)
         xs, ys, i = [], [], 0
-        for f, n in zip(fs, sizes):
+        for f, n in zip(fs, sizes, strict=True):
             xn, y = f(x[i:i + n], u)
             xs.append(xn)
             ys.append(y)

@@ -208,7 +208,7 @@ def select_terms(d: dict[str, Any], passes: int, extra: Sequence[str] = EXTRA_TE
     return {"method": "midpoint_selected", "candidates": candidates, "criterion": "validation FIT (Paper III)",
             "history": [{"n_terms": len(t), "fit_validation": float(f),
                          "removed": [c for c in prev if c not in t]}
-                        for (prev, _), (t, f) in zip([(candidates, 0.0)] + res.history[:-1], res.history)],
+                        for (prev, _), (t, f) in zip([(candidates, 0.0)] + res.history[:-1], res.history, strict=True)],
             **row, "search_time_s": round(time.perf_counter() - t0, 1), "_sim": sim}
 
 

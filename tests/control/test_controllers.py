@@ -5,10 +5,10 @@ import pytest
 
 from control.baselines import FeedforwardPI, LookupTableDosing
 from control.evaluation import evaluate
-from ident.greybox import StorageGreyBox
 from control.models import FirstPrinciplesModel, IdentifiedModelAdapter
 from control.mpc import NonlinearMPC
 from control.protocol import PolicyPredictor, action_to_rate
+from ident.greybox import StorageGreyBox
 
 
 def _identified_mpc(**kw):
@@ -180,7 +180,7 @@ def test_pi_rejects_bad_observations_and_batches_without_touching_its_state():
                 with pytest.raises(err, match=match):
                     pi.predict(bad, episode_start=np.array([True]))
         got.append(pi.predict(o, episode_start=np.array([k == 0]))[0])
-    assert all(np.array_equal(g, e) for g, e in zip(got, expected))
+    assert all(np.array_equal(g, e) for g, e in zip(got, expected, strict=True))
     assert pi.stats() == ref.stats()
     # one plant as a (1, n) batch: action (1, 1), the same number
     a, _ = FeedforwardPI().predict(obs[0][None], episode_start=np.array([True]))

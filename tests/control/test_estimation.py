@@ -102,7 +102,7 @@ def _state(ekf):
 
 
 def _same(a, b):
-    return all((x is None and y is None) or np.array_equal(x, y) for x, y in zip(a, b))
+    return all((x is None and y is None) or np.array_equal(x, y) for x, y in zip(a, b, strict=True))
 
 
 def test_a_nan_measurement_or_input_is_rejected_before_any_state_changes():

@@ -9,7 +9,6 @@ import pytest
 from control.baselines import LookupTableDosing
 from experiments import control_benchmark as cb
 
-
 PARAMS = [-0.0803, -0.2129, 0.2140, -0.1841, 0.1300, 0.9155, -0.0592, 0.0613, 0.9172, -0.2831, 0.0290]
 
 

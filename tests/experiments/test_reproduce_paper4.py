@@ -1,4 +1,5 @@
-"""experiments.reproduce_paper4: the table of each design, written by main (the fits: tests/ident/test_thesis_paper4.py)."""
+"""experiments.reproduce_paper4: the table of each design, written by main (the fits:
+tests/ident/test_thesis_paper4.py)."""
 from __future__ import annotations
 
 import json
@@ -8,6 +9,7 @@ import pytest
 from experiments import reproduce_paper4 as rp4
 from ident.plant_data import PAPER4_N_SAMPLES, whtc_dataset
 from ident.thesis import paper4 as p4
+
 
 def test_main_writes_the_table(tmp_path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)  # the run folder goes to ./runs

@@ -50,7 +50,7 @@ def test_no_validation_output_enters_fit_or_choice(data, fitted) -> None:
     y = data.y.copy()
     y[900:, 0] = y[900:, 0][::-1] * 3.0 + 100.0   # different validation outputs, same statistics of the estimation part
     rows2, sims2 = p4.fit_models(data.with_signals(y=y), models=("M-II", "M-V"), mv=MV_SMALL)
-    for a, b in zip(rows, rows2):
+    for a, b in zip(rows, rows2, strict=True):
         assert a["fit_estimation"] == b["fit_estimation"]
         if a["model"] == "M-V":
             assert a["holdout_fit"] == b["holdout_fit"] and a["chosen"] == b["chosen"]

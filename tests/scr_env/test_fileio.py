@@ -45,10 +45,9 @@ def test_a_failed_replace_leaves_the_previous_file_and_no_temporary(tmp_path, mo
 
 def test_an_exception_in_the_writer_leaves_the_previous_file(tmp_path) -> None:
     path = atomic_write_text(tmp_path / "fig.png", "old")
-    with pytest.raises(KeyboardInterrupt):   # an interrupt half-way through a figure
-        with atomic_path(path) as tmp:
-            tmp.write_text("half a fig")
-            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt), atomic_path(path) as tmp:   # an interrupt half-way through a figure
+        tmp.write_text("half a fig")
+        raise KeyboardInterrupt
     assert path.read_text() == "old" and _leftovers(tmp_path) == []
 
 
@@ -69,7 +68,7 @@ def test_a_full_disk_leaves_the_previous_good_json(tmp_path) -> None:
             sys.exit(0)
         sys.exit(3)
     """)
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False,
                           cwd=Path(__file__).resolve().parents[2])
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.startswith("refused")
@@ -105,3 +104,15 @@ def test_an_unwritable_folder_is_refused_before_any_work(tmp_path, monkeypatch) 
         check_output_folder(tmp_path, "run folder")
     with pytest.raises(PermissionError, match="--json file"):
         check_output_file(tmp_path / "r.json", "--json file")
+
+
+def test_new_files_get_the_usual_permissions_and_old_ones_keep_theirs(tmp_path) -> None:
+    mask = os.umask(0o022)
+    try:
+        path = atomic_write_text(tmp_path / "a.txt", "x")
+        assert path.stat().st_mode & 0o777 == 0o644   # not the 0600 of a temporary file
+        path.chmod(0o640)
+        atomic_write_text(path, "y")
+        assert path.stat().st_mode & 0o777 == 0o640
+    finally:
+        os.umask(mask)
