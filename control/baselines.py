@@ -74,7 +74,30 @@ def feedforward_dose_g_s(upstream_nox_ppm: Any, exhaust_flow_mol_s: Any, anr: An
     return anr * nox_mol_s / NH3_MOL_PER_G_ADBLUE
 
 
-class LookupTableDosing:
+class _DoseMap:
+    """A stateless policy from a dose map ``dose_g_s(observation) -> g/s`` (the subclass's): the observation check,
+    one observation or a batch, the action scaling. ``observation_size_`` is set by :meth:`attach`."""
+
+    max_rate_g_s: float
+    observation_size_: int | None = None
+
+    def dose_g_s(self, observation: np.ndarray) -> float:
+        raise NotImplementedError
+
+    def attach(self, env: Any) -> None:
+        """Remember the environment's observation size (to check observations); nothing else is read."""
+        self.observation_size_ = observation_size(env)
+
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        batch, single = check_observation(observation, self.observation_size_, max_batch=None,
+                                          owner=type(self).__name__)
+        if single:
+            return rate_to_action(self.dose_g_s(batch[0]), self.max_rate_g_s), state
+        return np.stack([rate_to_action(self.dose_g_s(row), self.max_rate_g_s) for row in batch]), state
+
+
+class LookupTableDosing(_DoseMap):
     """Open-loop dosing: AdBlue = ANR(T, flow) * engine-out NOx [mol/s] / 0.0108 mol/g (module docstring).
 
     Parameters
@@ -99,10 +122,6 @@ class LookupTableDosing:
         self.max_rate_g_s = max_rate_g_s
         self.observation_size_: int | None = None
 
-    def attach(self, env: Any) -> None:
-        """Remember the environment's observation size (to check observations); nothing else is read."""
-        self.observation_size_ = observation_size(env)
-
     def target_anr(self, inlet_temperature_k: float, exhaust_flow_mol_s: float) -> float:
         """Target ANR [-] at an inlet temperature [K] and exhaust flow [mol/s]."""
         a = float(np.interp(inlet_temperature_k - 273.15, self.temperatures_c, self.anr))
@@ -114,14 +133,6 @@ class LookupTableDosing:
         anr = self.target_anr(float(observation[1]), float(observation[2]))
         dose = float(feedforward_dose_g_s(float(observation[0]), float(observation[2]), anr))
         return min(max(dose, 0.0), self.max_rate_g_s)
-
-    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        batch, single = check_observation(observation, self.observation_size_, max_batch=None,
-                                          owner=type(self).__name__)
-        if single:
-            return rate_to_action(self.dose_g_s(batch[0]), self.max_rate_g_s), state
-        return np.stack([rate_to_action(self.dose_g_s(row), self.max_rate_g_s) for row in batch]), state
 
 
 class FeedforwardPI:
@@ -240,7 +251,7 @@ class FeedforwardPI:
 
 
 
-class FeedforwardDosing:
+class FeedforwardDosing(_DoseMap):
     """Feedforward dosing without a map: ANR times the upstream NOx molar flow (:func:`feedforward_dose_g_s`),
     optionally ramped in with the inlet temperature -- zero below ``ramp_start_k``, rising linearly to ``anr`` over
     ``ramp_width_k`` -- and clipped to the injector range. The simple references of the project: flat ANR 0.9 / 1.0
@@ -273,10 +284,6 @@ class FeedforwardDosing:
         self.max_rate_g_s = max_rate_g_s
         self.observation_size_: int | None = None
 
-    def attach(self, env: Any) -> None:
-        """Remember the environment's observation size (to check observations)."""
-        self.observation_size_ = observation_size(env)
-
     def target_anr(self, inlet_temperature_k: float) -> float:
         """ANR [-] at an inlet temperature [K]."""
         if self.ramp_start_k is None:
@@ -289,11 +296,3 @@ class FeedforwardDosing:
         dose = float(feedforward_dose_g_s(float(observation[0]), float(observation[2]),
                                           self.target_anr(float(observation[1]))))
         return min(max(dose, 0.0), self.max_rate_g_s)
-
-    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        batch, single = check_observation(observation, self.observation_size_, max_batch=None,
-                                          owner=type(self).__name__)
-        if single:
-            return rate_to_action(self.dose_g_s(batch[0]), self.max_rate_g_s), state
-        return np.stack([rate_to_action(self.dose_g_s(row), self.max_rate_g_s) for row in batch]), state

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM
 from scr_env.fileio import atomic_path
 
 __all__ = ["ageing_figures", "closed_loop_figure", "fit_bar_chart", "pyplot"]
@@ -102,7 +103,7 @@ def fit_bar_chart(fits: Mapping[str, Mapping[str, float]], outputs: Sequence[str
 
 
 def ageing_figures(doc: Mapping[str, Any], history: np.ndarray, out: str | Path,
-                   slip_target_ppm: float = 10.0) -> list[Path]:
+                   slip_target_ppm: float = EURO_VI_NH3_SLIP_LIMIT_PPM) -> list[Path]:
     """The ageing study's figures in ``out``: ``kpis_vs_cycle.png`` (mean and peak slip, tailpipe NOx and AdBlue of
     the fixed and the adaptive NMPC per cycle) and, if the adaptive run logged any, ``parameter_tracking.png`` (the
     RPEM's retention estimates over the sequence, episodes back to back, against the true retentions).
