@@ -19,12 +19,19 @@ from scr_env.fileio import atomic_path, atomic_write_text, check_output_file, ch
 __all__ = ["run_folder", "save_figure", "save_results", "write_json", "write_text"]
 
 
-def run_folder(name: str, root: str | Path = "runs", json_path: str | Path | None = None) -> Path:
-    """Create and return ``<root>/<name>/<YYYYmmdd-HHMMSS>/`` (a numeric suffix if it already exists), checked
-    writable; ``json_path`` (the experiment's ``--json``), if given, is checked too (its folder exists and is
-    writable, it is not a folder). ``OSError`` subclasses naming the folder or the file otherwise."""
+def run_folder(name: str, root: str | Path = "runs", json_path: str | Path | None = None,
+               folder: str | Path | None = None) -> Path:
+    """Create and return ``<root>/<name>/<YYYYmmdd-HHMMSS>/`` (a numeric suffix if it already exists), or
+    ``folder`` if given (an experiment's ``--out``; it may exist), checked writable; ``json_path`` (the
+    experiment's ``--json``), if given, is checked too (its folder exists and is writable, it is not a folder).
+    ``OSError`` subclasses naming the folder or the file otherwise."""
     if json_path is not None:
         check_output_file(json_path, "--json file")
+    if folder is not None:
+        folder = Path(folder)
+        if not folder.exists():
+            folder.mkdir(parents=True)
+        return check_output_folder(folder, "output folder")
     base = Path(root) / name / time.strftime("%Y%m%d-%H%M%S")
     path, i = base, 1
     while path.exists():

@@ -131,8 +131,7 @@ def _report(doc: dict[str, Any], figures: list[Path], out: Path) -> Path:
 def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, Any] | None = None,
         include_rl: bool = True, json_path: Path | None = None) -> dict[str, Any]:
     """The whole loop; returns the JSON document (also written with the report into ``out``)."""
-    out = out or run_folder("identify_then_control", json_path=json_path)
-    out.mkdir(parents=True, exist_ok=True)
+    out = run_folder("identify_then_control", json_path=json_path, folder=out)
     start = time.perf_counter()
     print("1-2. excitation experiments and identification ...", flush=True)
     greybox, gb = greybox_record()

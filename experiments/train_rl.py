@@ -43,6 +43,7 @@ from control.rl.selection import (
     validate,
 )
 from experiments._runs import run_folder, write_json
+from scr_env.fileio import check_output_file
 
 #: reward weights of training [chosen, see control/policies/README.md]: a gram of tailpipe NOx costs 40 g of AdBlue
 #: (twice the env default: dosing pays more), a gram of NH3 slip 150 g (3.75 times NOx per gram, 1.4 times per mol).
@@ -93,6 +94,8 @@ def main(argv: list[str] | None = None) -> dict:
     from control.rl.training import train
 
     name = args.name or args.algo
+    if args.json:
+        check_output_file(args.json, "--json file")
     command = "python -m experiments.train_rl " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     surrogate_info: dict[str, Any] = {}
     if args.select_from is not None:

@@ -52,3 +52,11 @@ def test_experiments_check_their_outputs_before_working(tmp_path, monkeypatch, m
             monkeypatch.setattr(module, name, no_work)
     with pytest.raises(FileNotFoundError, match="--json file"):
         module.main([*argv, "--json", str(tmp_path / "missing" / "r.json")])
+
+
+def test_a_given_output_folder_is_created_or_reused_and_checked(tmp_path) -> None:
+    out = _runs.run_folder("x", folder=tmp_path / "my" / "out")
+    assert out == tmp_path / "my" / "out" and out.is_dir()
+    assert _runs.run_folder("x", folder=out) == out   # an existing folder is fine
+    with pytest.raises(NotADirectoryError, match="not a folder"):
+        _runs.run_folder("x", folder=_runs.write_text(tmp_path / "file", "x"))
