@@ -222,7 +222,8 @@ def fit_models(ds: IODataset, n_estimation: int = PAPER4_N_ESTIMATION, output: i
                "mse_validation_x0_from_validation": float(cv0.mse), "fit_time_s": round(fit_s, 2)}
         if name == "M-V":
             row["chosen"] = chosen
-            row["holdout_fit"] = {k: round(v, 2) for k, v in zip(labels, ho_scores, strict=True)}
+            # no hold-out scores with a single candidate: {}
+            row["holdout_fit"] = {k: round(v, 2) for k, v in zip(labels, ho_scores, strict=False)}
         if name in PUBLISHED:
             p = PUBLISHED[name]
             row["published"] = {"fit_estimation": p[0], "mse_estimation": p[1], "fit_validation": p[2],
