@@ -140,7 +140,8 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
     for n, m in [*ident["black_box"]["models"].items(), ("greybox", {
             "validation_fit_percent": gb["validation_fit_percent_whtc"],
             "validation_sd_ppm": gb["validation_sd_ppm_whtc"]})]:
-        print(f"  {n}: " + (m["error"] if "error" in m else ", ".join(_fit_cells(m)[0])))
+        print(f"  {n}: " + (m["error"] if "error" in m else ", ".join(
+            f"{k} {c}" for k, c in zip(m["validation_fit_percent"], _fit_cells(m)[0], strict=False))))
     rl, rl_note = available_rl() if include_rl else ([], "RL policies not requested")
     names = ["mpc_oracle", "mpc_greybox", *[f"mpc_{m}" for m in BLACK_BOX if "paths" in ident["black_box"]["models"]
                                             .get(m, {})], "pi", "lookup_table", *rl]
