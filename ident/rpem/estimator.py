@@ -489,5 +489,5 @@ class RecursivePEM:
         """Inverse of :meth:`save` (the recursion can continue with :meth:`partial_fit`)."""
         est = load_model(path)
         if not isinstance(est, cls):
-            raise ValueError(f"{path} holds a {type(est).__name__}, not a {cls.__name__}")
+            raise ValueError(f"{path} holds a {type(est).__name__}, not a {cls.__name__}")  # noqa: TRY004
         return est
