@@ -102,6 +102,45 @@ def stabilize(A: np.ndarray, max_radius: float = 0.999) -> np.ndarray:
     return np.real(V @ np.diag(lam) @ np.linalg.inv(V))
 
 
+def random_stable_poles(n: int, rng: np.random.Generator, max_time_constant: float) -> np.ndarray:
+    """``n`` random discrete-time poles for a random stable start: complex-conjugate pairs (and one real pole when
+    ``n`` is odd) with time constants ``tau`` log-uniform between 1 and ``max_time_constant`` samples (radius
+    ``exp(-1 / tau)``), the pairs at angles uniform in [0, pi/2) (at most four samples per period)."""
+    tau_max = max(float(max_time_constant), 1.5)
+    poles: list[complex] = []
+    while len(poles) < n:
+        r = float(np.exp(-1.0 / np.exp(rng.uniform(0.0, np.log(tau_max)))))
+        if n - len(poles) == 1:
+            poles.append(complex(r, 0.0))
+        else:
+            angle = float(rng.uniform(0.0, np.pi / 2))
+            poles += [r * np.exp(1j * angle), r * np.exp(-1j * angle)]
+    return np.asarray(poles)
+
+
+def random_stable_poly(n: int, rng: np.random.Generator, max_time_constant: float) -> np.ndarray:
+    """A random monic polynomial in q^-1 of order ``n`` with the poles of :func:`random_stable_poles`."""
+    return np.real(np.poly(random_stable_poles(n, rng, max_time_constant))) if n else np.ones(1)
+
+
+def random_stable_ss(n: int, rng: np.random.Generator, max_time_constant: float) -> np.ndarray:
+    """A random stable real ``A`` (n x n) with the poles of :func:`random_stable_poles`, in real block-diagonal form
+    (2 x 2 rotation-scaling blocks for the complex pairs) turned by a random orthogonal similarity."""
+    lam = random_stable_poles(n, rng, max_time_constant)
+    A = np.zeros((n, n))
+    k = 0
+    while k < n:
+        if abs(lam[k].imag) > 0 and k + 1 < n:
+            a, b = lam[k].real, abs(lam[k].imag)
+            A[k:k + 2, k:k + 2] = [[a, -b], [b, a]]
+            k += 2
+        else:
+            A[k, k] = lam[k].real
+            k += 1
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    return Q @ A @ Q.T
+
+
 def ss_sensitivities(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, K: np.ndarray | None,
                      u: np.ndarray, y: np.ndarray | None, x0: np.ndarray, free: dict[str, bool]
                      ) -> tuple[np.ndarray, np.ndarray]:
