@@ -7,7 +7,9 @@ Reported:
   resetting at the end of the cycle;
 * ``pendulum_steps_per_s``: ``gymnasium.make("Pendulum-v1")`` the same way (the reference for Python overhead);
 * ``vector_env_steps_per_s``: env-steps per second of the native vector environment with ``num_envs`` plants;
-* ``rpem_samples_per_s`` (and the full degree-2 model) from :mod:`experiments.benchmark_rpem`, when available.
+* ``rpem_samples_per_s`` (and the full degree-2 model) from :mod:`experiments.benchmark_rpem`, when available;
+* ``hw_pwl_fit_s``: seconds to fit a piecewise-linear Hammerstein-Wiener model on 10^5 samples
+  (:func:`ident.hammerstein_wiener.speed.measure_pwl_fit_speed`, goal 10 s).
 Everything is timed after a warm-up (JIT compilation excluded). The three figures are measured in ``--rounds``
 interleaved rounds of about ``--seconds`` each (Pendulum, single, vector, Pendulum, ...) and each is the median of
 its rounds, so a change of the machine's state during the run (other load, clock) affects the reference and the
@@ -75,7 +77,8 @@ def _time_vector(num_envs: int, seconds: float) -> float:
     return steps / (now - start)
 
 
-def measure(num_envs: int = 1024, seconds: float = 2.0, rpem: bool = True, rounds: int = 3) -> dict[str, Any]:
+def measure(num_envs: int = 1024, seconds: float = 2.0, rpem: bool = True, rounds: int = 3,
+            hw: bool = True) -> dict[str, Any]:
     """All throughput figures, as a dict (see the module docstring)."""
     if rounds < 1:
         raise ValueError(f"rounds must be >= 1, got {rounds!r}")
@@ -97,6 +100,10 @@ def measure(num_envs: int = 1024, seconds: float = 2.0, rpem: bool = True, round
             result["rpem_error"] = f"experiments.benchmark_rpem unavailable: {e}"
         else:
             result.update(measure_rpem_speed())
+    if hw:
+        from ident.hammerstein_wiener.speed import measure_pwl_fit_speed
+
+        result.update(measure_pwl_fit_speed())
     result["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count(),
                          "processor": platform.processor() or platform.machine()}
     return result
@@ -109,10 +116,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--seconds", type=float, default=2.0, help="timing window per figure and round [s] (default 2)")
     ap.add_argument("--rounds", type=int, default=3, help="interleaved measuring rounds, median reported (default 3)")
     ap.add_argument("--no-rpem", action="store_true", help="skip the RPEM figures")
+    ap.add_argument("--no-hw", action="store_true", help="skip the Hammerstein-Wiener fit time")
     args = ap.parse_args(argv)
     if args.num_envs < 1 or args.seconds <= 0 or args.rounds < 1:
         ap.error("--num-envs and --rounds must be >= 1 and --seconds > 0")
-    r = measure(args.num_envs, args.seconds, rpem=not args.no_rpem, rounds=args.rounds)
+    r = measure(args.num_envs, args.seconds, rpem=not args.no_rpem, rounds=args.rounds, hw=not args.no_hw)
     print(f"Pendulum-v1 (gym.make)        {r['pendulum_steps_per_s']:>12,.0f} steps/s")
     print(f"UreaSCR-v0 single (gym.make)  {r['env_steps_per_s']:>12,.0f} steps/s   "
           f"{r['single_vs_pendulum']:.2f}x Pendulum (goal 0.5x)")
@@ -123,6 +131,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             print(f"{key:30s}{r[key]:>12,.0f} samples/s")
     if "rpem_error" in r:
         print(r["rpem_error"])
+    if "hw_pwl_fit_s" in r:
+        print(f"Hammerstein-Wiener PWL fit, {r['hw_pwl_n_samples']:,} samples  {r['hw_pwl_fit_s']:>8.1f} s   "
+              f"(goal 10 s; validation FIT {r['hw_pwl_validation_fit']:.1f} %)")
     if args.json:
         write_json(args.json, r)
     return r

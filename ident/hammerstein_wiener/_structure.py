@@ -232,14 +232,18 @@ class Structure:
         f_sum = max(float(np.sum(f)), 1e-12)
         _, df_dk = poly_from_reflection(np.tanh(eta))
         vf = lfilter([1.0], f, v - v0)
-        db = [shift(vf, nk + k) + v0 / f_sum for k in range(nb)]
+        N = len(vf)
         g = self.gain[j, i]
+        n_db = nb - int(np.isfinite(g))
+        for k in range(n_db):
+            d = nk + k
+            out[d:, k] = vf[:N - d] if d < N else 0.0
+        if v0:
+            out[:, :n_db] += v0 / f_sum
         last = None
         if np.isfinite(g):   # b_last = g F(1) - sum(other b): chain its column into the free ones
-            last = db.pop()
-            db = [c - last for c in db]
-        for k, c in enumerate(db):
-            out[:, k] = c
+            last = shift(vf, nk + nb - 1) + v0 / f_sum
+            out[:, :n_db] -= last[:, None]
         if nf:
             wf = lfilter([1.0], f, wi - gain * v0)   # the filtered part (the steady offset: below)
             dw_df = np.zeros((len(wf), nf))
@@ -250,4 +254,4 @@ class Structure:
             d_eta = dw_df @ df_dk[1:]
             if last is not None:
                 d_eta = d_eta + last[:, None] * (g * df_dk.sum(axis=0))[None, :]
-            out[:, len(db):] = d_eta * (1.0 - np.tanh(eta) ** 2)
+            out[:, n_db:] = d_eta * (1.0 - np.tanh(eta) ** 2)

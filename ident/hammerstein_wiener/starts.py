@@ -21,6 +21,7 @@ import copy
 from typing import Any
 
 import numpy as np
+from scipy.linalg import lstsq
 
 from ident.base import check_is_fitted
 from ident.hammerstein_wiener._structure import Structure, eta_from_poly
@@ -195,7 +196,7 @@ def overparametrised_inputs(st: Structure, u: np.ndarray, Y: np.ndarray, run: tu
             spans.append((start, len(cols)))
         cols.append(np.ones(len(ua) - lag))
         X = np.column_stack(cols)
-        coef = np.linalg.lstsq(X, Ya[rows, j], rcond=None)[0]
+        coef = lstsq(X, Ya[rows, j], lapack_driver="gelsy")[0]   # QR with pivoting: rank-revealing, fast
         for i, (s0, s1) in enumerate(spans):
             if s1 > s0:
                 thetas[i].append(coef[s0:s1].reshape(int(st.nb[j, i]), bases[i].shape[1]))
