@@ -24,6 +24,7 @@ import numpy as np
 
 from ident.base import as_2d, as_vector, check_is_fitted, check_not_constant, check_same_length
 from ident.io import load_model, save_model
+from ident.linear._kernels import sensitivity_outputs, state_sequence
 
 
 def data_columns(u: Any, y: Any, model: str = "model") -> tuple[int, int]:
@@ -71,14 +72,8 @@ def simulate_ss(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, u: n
                 x0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Free-run simulation; returns (y, x) with y of shape (N, ny) and states x of shape (N + 1, n)."""
     n = A.shape[0]
-    N = u.shape[0]
     x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).reshape(n)
-    bu = u @ B.T
-    X = np.empty((N + 1, n))
-    for t in range(N):
-        X[t] = x
-        x = A @ x + bu[t]
-    X[N] = x
+    X = state_sequence(np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(u @ B.T, dtype=float), x)
     return X[:-1] @ C.T + u @ D.T, X
 
 
@@ -164,11 +159,8 @@ def ss_sensitivities(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,
     Bbar = B - K @ D if use_k else B
     # the simulation of the predictor: inputs u and (if K) the measured y
     drive = u @ Bbar.T + (y @ K.T if use_k else 0.0)
-    X = np.empty((N, n))
-    x = x0.copy()
-    for t in range(N):
-        X[t] = x
-        x = Abar @ x + drive[t]
+    X = state_sequence(np.ascontiguousarray(Abar, dtype=float), np.ascontiguousarray(drive, dtype=float),
+                       np.asarray(x0, dtype=float))[:-1]
     yhat = X @ C.T + u @ D.T
     sizes = [("A", n * n), ("B", n * nu), ("C", ny * n)]
     if free.get("D"):
@@ -201,10 +193,7 @@ def ss_sensitivities(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,
     S = np.zeros((n, p))
     if "x0" in off:
         S[:, off["x0"]:off["x0"] + n] = np.eye(n)
-    J = np.empty((N, ny, p))
-    for t in range(N):
-        J[t] = C @ S
-        S = Abar @ S + G[t]
+    J = sensitivity_outputs(np.ascontiguousarray(Abar, dtype=float), np.ascontiguousarray(C, dtype=float), G, S)
     J += H
     return yhat, J
 
