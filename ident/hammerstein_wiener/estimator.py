@@ -52,7 +52,6 @@ Special cases: :func:`wiener` (identity inputs) and :func:`hammerstein` (identit
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -60,9 +59,9 @@ from scipy.linalg import block_diag
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
-from ident.base import as_2d, as_vector, check_is_fitted, check_same_length
+from ident.base import BaseEstimator, as_2d, as_vector, check_is_fitted, check_same_length
 from ident.hammerstein_wiener.blocks import Identity, StaticNonlinearity, block_from_dict
-from ident.io import load_model, register_model, save_model
+from ident.io import register_model
 from ident.linear import OutputError
 from ident.linear._statespace import _per_input, data_columns, simulate_ss, tf_to_ss, validate_fit_data
 from ident.linear.oe import _KAPPA_MAX, poly_from_reflection, reflection_from_poly, stabilize_poly
@@ -92,7 +91,7 @@ def _longest_run(mask: np.ndarray) -> tuple[int, int]:
 
 
 @register_model("hammerstein_wiener")
-class HammersteinWiener:
+class HammersteinWiener(BaseEstimator):
     """Hammerstein-Wiener model with one static block per input, per-input ``B_i/F_i`` and one output block (MISO).
 
     Parameters
@@ -168,16 +167,6 @@ class HammersteinWiener:
         self.initial = initial
 
     # ------------------------------------------------------------------------------------------- helpers
-    def get_params(self) -> dict[str, Any]:
-        """Constructor arguments as stored (scikit-learn convention)."""
-        return {k: getattr(self, k) for k in ("input_blocks", "output_block", "nb", "nf", "nk", "regularization",
-                                              "max_nfev", "tol", "init_model", "smoothness", "holdout",
-                                              "unit_gain", "initial")}
-
-    def __repr__(self) -> str:
-        return f"HammersteinWiener(input_blocks={self.input_blocks!r}, output_block={self.output_block!r}, " \
-               f"nb={self.nb!r}, nf={self.nf!r}, nk={self.nk!r})"
-
     def _orders(self, nu: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return _per_input(self.nb, nu, "nb"), _per_input(self.nf, nu, "nf"), _per_input(self.nk, nu, "nk")
 
@@ -637,18 +626,6 @@ class HammersteinWiener:
         obj.initial_cost_ = float(meta["initial_cost_"])
         obj.n_params_ = int(meta["n_params_"])
         obj._realise()
-        return obj
-
-    def save(self, path: str | Path) -> Path:
-        """Save as ``<path>.json`` + ``<path>.npz`` (see :mod:`ident.io`); returns the JSON path."""
-        return save_model(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> HammersteinWiener:
-        """Load a model saved with :meth:`save`."""
-        obj = load_model(path)
-        if not isinstance(obj, cls):
-            raise TypeError(f"{path} holds a {type(obj).__name__}, not a {cls.__name__}")
         return obj
 
 

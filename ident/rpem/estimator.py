@@ -2,15 +2,13 @@
 nonlinear ODE model (Wigren 2006; thesis Papers I-III, ALGORITHMS.md section 1)."""
 from __future__ import annotations
 
-import inspect
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ident.base import as_2d, check_is_fitted, check_not_constant, check_positive_int, check_same_length
-from ident.io import load_model, register_model, save_model
+from ident.base import BaseEstimator, as_2d, check_is_fitted, check_not_constant, check_positive_int, check_same_length
+from ident.io import register_model
 from ident.metrics import fit_percent
 from ident.rpem import kernel
 from ident.rpem.kalman_init import ekf_initial_theta, ekf_state_estimates, kalman_options
@@ -19,7 +17,7 @@ from ident.rpem.structure import ChainStructure, apply_input_transforms, method_
 
 
 @register_model("rpem")
-class RecursivePEM:
+class RecursivePEM(BaseEstimator):
     """Recursive prediction error method on an n-state chain model with a polynomial right-hand side.
 
     Model (continuous time, per output k; a MIMO model is one chain per output)::
@@ -133,27 +131,6 @@ class RecursivePEM:
         self.kalman_options = kalman_options
         self.n_passes = n_passes
         self.pass_tol = pass_tol
-
-    # ------------------------------------------------------------------ parameters (scikit-learn style)
-    def get_params(self, deep: bool = True) -> dict[str, Any]:
-        """Constructor arguments as a dict."""
-        names = [p for p in inspect.signature(type(self).__init__).parameters if p != "self"]
-        return {n: getattr(self, n) for n in names}
-
-    def set_params(self, **params: Any) -> RecursivePEM:
-        """Set constructor arguments; returns self."""
-        valid = self.get_params()
-        for k, v in params.items():
-            if k not in valid:
-                raise ValueError(f"invalid parameter {k!r} for RecursivePEM")
-            setattr(self, k, v)
-        return self
-
-    def clone(self, **overrides: Any) -> RecursivePEM:
-        """An unfitted copy with the same (optionally overridden) constructor arguments."""
-        params = self.get_params()
-        params.update(overrides)
-        return type(self)(**params)
 
     # ------------------------------------------------------------------ set-up
     @property
@@ -443,6 +420,7 @@ class RecursivePEM:
 
     # ------------------------------------------------------------------ persistence (ident.io, JSON + NPZ)
     def _get_state(self) -> tuple[dict, dict[str, np.ndarray]]:
+        check_is_fitted(self, "theta_")
         params = self.get_params()
         # Terms are saved as one list per output with global state numbering, which reloads to the same structure.
         names = np.array(self.terms_, dtype=object)
@@ -476,18 +454,4 @@ class RecursivePEM:
         est._st[kernel.ST_STARTED] = 0.0
         est.n_samples_seen_ = int(est._st[kernel.ST_COUNT])
         est.n_rejected_ = int(est._st[kernel.ST_REJECTED])
-        return est
-
-    def save(self, path: str | Path) -> Path:
-        """Write ``<path>.json`` (constructor arguments, terms) and ``<path>.npz`` (arrays) via
-        :func:`ident.io.save_model`; returns the JSON path."""
-        check_is_fitted(self, "theta_")
-        return save_model(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> RecursivePEM:
-        """Inverse of :meth:`save` (the recursion can continue with :meth:`partial_fit`)."""
-        est = load_model(path)
-        if not isinstance(est, cls):
-            raise ValueError(f"{path} holds a {type(est).__name__}, not a {cls.__name__}")
         return est
