@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from control.evaluation import evaluate
-from ident.base import NotFittedError
-from ident.greybox import StorageGreyBox
 from control.models import IdentifiedModelAdapter
 from control.mpc import NonlinearMPC
+from ident.base import NotFittedError
+from ident.greybox import StorageGreyBox
 
 PARAMS = np.array([0.1, -0.2, 0.3, 0.02, -0.1, 0.2, 0.05, 0.1, -0.3, 1.0, 0.0])
 
