@@ -496,6 +496,12 @@ class RecursivePEM(BaseEstimator):
             self.__dict__.pop(attr, None)
         self._setup(u2.shape[1], y2.shape[1])
         ut = apply_input_transforms(u2, self.input_transforms or {})
+        with np.errstate(over="ignore", invalid="ignore"):
+            bad = np.flatnonzero(~np.isfinite(ut.var(axis=0)))
+        if bad.size:
+            raise ValueError(f"u has a non-finite variance in column(s) {bad.tolist()} (values up to "
+                             f"{np.abs(ut[:, bad]).max():.3g} overflow, after input_transforms): rescale it before "
+                             "identifying the RPEM model")
         if self.normalize:
             sd_u = ut.std(axis=0)
             self._set_scaling(ut.mean(axis=0), np.where(sd_u > 0, sd_u, 1.0), y2.mean(axis=0), y2.std(axis=0))
