@@ -21,6 +21,11 @@ from ident.rpem.structure import INPUT_TRANSFORMS, ChainStructure, apply_input_t
 #: Static output functions ``y = h(x1, eta)``: name -> kernel code.
 OUTPUT_FUNCTIONS = {"identity": kernel.OUT_IDENTITY, "polynomial": kernel.OUT_POLYNOMIAL, "abs": kernel.OUT_ABS,
                     "saturation": kernel.OUT_SATURATION}
+#: The automatic choices for fitting a record of your own, ``RecursivePEM(n_states=..., sampling_period=T,
+#: **AUTO_SETTINGS)``: standardised signals, the time scale and the sub-steps from an ARX model, data-driven starts,
+#: the half-step input and the pass mode chosen on the inner hold-out, up to 30 passes keeping the best.
+AUTO_SETTINGS: dict[str, Any] = {"normalize": True, "alpha": "auto", "n_substeps": "auto", "init": "auto",
+                                 "half_step_input": "auto", "pass_mode": "auto", "n_passes": 30, "keep": "best"}
 #: Largest number of integration sub-steps per sample.
 MAX_SUBSTEPS = 50
 #: ``n_substeps="auto"``: the fastest estimated mode turns by at most this angle (rad) per sub-step.
@@ -76,10 +81,12 @@ class RecursivePEM(BaseEstimator):
     Paper II's ``delta = 0.015`` with ``alpha = 1.5`` is 0.0225 1/s; 0.025 with ``alpha = 2500`` (the
     Wiener-Hammerstein benchmark) is 62.5 1/s.
 
-    Fitting your own data (the automatic choices): ``RecursivePEM(n_states=2, total_degree=3, sampling_period=T,
-    normalize=True, alpha="auto", n_substeps="auto", init="auto", half_step_input="auto", n_passes=10)``
-    standardises the signals, takes the time scale from a linear fit, starts from an equation-error estimate and
-    keeps the best pass on an inner hold-out. See ``docs`` for an example.
+    Fitting your own data: ``RecursivePEM(n_states=2, total_degree=3, sampling_period=T, **AUTO_SETTINGS)``
+    (:data:`AUTO_SETTINGS`: ``normalize=True, alpha="auto", n_substeps="auto", init="auto",
+    half_step_input="auto", pass_mode="auto", n_passes=30``) standardises the signals, takes the time scale and the
+    sub-steps from a linear fit, starts from data-driven estimates and keeps the best choices and pass on an inner
+    hold-out. The defaults of the class are the thesis' settings (``alpha=1``, one step per sample, ``theta0`` as
+    given, the held input, passes that restart), which the reproductions of Papers II and III use.
 
     Parameters
     ----------
@@ -155,10 +162,11 @@ class RecursivePEM(BaseEstimator):
     keep : {"best", "last"}
         Which pass (and, with the automatic choices, which start and half-step input) to keep: the best simulation
         fit on the inner hold-out (``"best"``) or the last pass.
-    holdout : float
+    holdout : float, optional
         Fraction of the record, at its end, held out to score passes and automatic choices (in [0, 0.5)); the
-        recursion runs on the rest. 0: score on the estimation data itself. Records shorter than 100 samples are
-        never split.
+        recursion runs on the rest. 0: score on the estimation data itself (the thesis' passes "until the fit stops
+        improving"). ``None`` (default): 0.2 when an automatic choice is asked for (``init``, ``half_step_input``
+        or ``pass_mode`` "auto", or ``n_restarts`` > 0), else 0. Records shorter than 100 samples are never split.
     pass_mode : {"restart", "continue", "auto"}
         ``"restart"`` (the thesis): every pass restarts R, Lambda and the gain from their initial values, keeping
         only theta. ``"continue"``: a pass restarts the state only and the recursion goes on, the gain still
@@ -204,7 +212,7 @@ class RecursivePEM(BaseEstimator):
         normalize: bool = False,
         n_substeps: int | str = 1,
         keep: str = "best",
-        holdout: float = 0.2,
+        holdout: float | None = None,
         n_restarts: int = 0,
         pass_mode: str = "restart",
         random_state: int = 0,
@@ -275,7 +283,8 @@ class RecursivePEM(BaseEstimator):
         _real("state_bound", self.state_bound, 0.0, low_open=True)
         _real("sensitivity_bound", self.sensitivity_bound, 0.0, low_open=True)
         _real("pass_tol", self.pass_tol, 0.0)
-        _real("holdout", self.holdout, 0.0, 0.5, high_open=True)
+        if self.holdout is not None:
+            _real("holdout", self.holdout, 0.0, 0.5, high_open=True)
         check_positive_int("n_restarts", self.n_restarts, minimum=0, what="number of random restarts")
         check_positive_int("output_degree", self.output_degree, minimum=2, what="(degree of the output polynomial)")
         if int(self.output_degree) > 9:
@@ -510,9 +519,11 @@ class RecursivePEM(BaseEstimator):
             raise ValueError("u or y overflows after scaling: rescale the signals")
         self._resolve_time_scale(um, ym)
         N = len(ym)
-        n_hold = round(float(self.holdout) * N) if N >= 100 else 0
-        tuned = self.keep == "best" and (n_passes > 1 or self.init == "auto" or self.half_step_input == "auto"
-                                         or int(self.n_restarts) > 0 or self.pass_mode == "auto")
+        autos = (self.init == "auto" or self.half_step_input == "auto" or self.pass_mode == "auto"
+                 or int(self.n_restarts) > 0)
+        frac = (0.2 if autos else 0.0) if self.holdout is None else float(self.holdout)
+        n_hold = round(frac * N) if N >= 100 else 0
+        tuned = self.keep == "best" and (n_passes > 1 or autos)
         split = N - n_hold if (tuned and n_hold > 0) else N
         modes = ["hold", "interpolate"] if self.half_step_input == "auto" else [self.half_step_input_]
         pass_modes = ["restart", "continue"] if self.pass_mode == "auto" else [self.pass_mode]
@@ -989,5 +1000,5 @@ class RecursivePEM(BaseEstimator):
         return est
 
 
-__all__ = ["OUTPUT_FUNCTIONS", "RecursivePEM"]
+__all__ = ["AUTO_SETTINGS", "OUTPUT_FUNCTIONS", "RecursivePEM"]
 _ = DEFAULT_KALMAN_OPTIONS  # re-exported for users reading the defaults next to the estimator
