@@ -73,17 +73,16 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy.linalg import block_diag
 
-from ident.base import as_2d, as_vector, check_is_fitted, check_same_length
+from ident.base import BaseEstimator, as_2d, as_vector, check_is_fitted, check_same_length
 from ident.hammerstein_wiener._structure import Structure
 from ident.hammerstein_wiener.blocks import Identity, StaticNonlinearity, block_from_dict
 from ident.hammerstein_wiener.starts import linear_start, longest_run, overparametrised_inputs, random_start
-from ident.io import load_model, register_model, save_model
+from ident.io import register_model
 from ident.linear import OutputError
 from ident.linear._lsq import levenberg_marquardt
 from ident.linear._statespace import data_columns, simulate_ss, tf_to_ss, validate_fit_data
@@ -141,7 +140,7 @@ def _holdout_fit(model: HammersteinWiener, u: np.ndarray, Y: np.ndarray, n_in: i
 
 
 @register_model("hammerstein_wiener")
-class HammersteinWiener:
+class HammersteinWiener(BaseEstimator):
     """Hammerstein-Wiener model: one static block per input, one ``B_ji/F_ji`` per (output, input) pair, one static
     block per output (MISO or MIMO).
 
@@ -239,20 +238,6 @@ class HammersteinWiener:
         self.n_restarts = n_restarts
         self.random_state = random_state
 
-    # ------------------------------------------------------------------------------------------- helpers
-    def get_params(self) -> dict[str, Any]:
-        """Constructor arguments as stored (scikit-learn convention)."""
-        return {k: getattr(self, k) for k in ("input_blocks", "output_block", "nb", "nf", "nk", "regularization",
-                                              "max_nfev", "tol", "init_model", "smoothness", "holdout",
-                                              "unit_gain", "initial", "start", "n_restarts", "random_state")}
-
-    def __repr__(self) -> str:
-        return f"HammersteinWiener(input_blocks={self.input_blocks!r}, output_block={self.output_block!r}, " \
-               f"nb={self.nb!r}, nf={self.nf!r}, nk={self.nk!r})"
-
-    def _clone(self, **changes: Any) -> HammersteinWiener:
-        return type(self)(**{**self.get_params(), **changes})
-
     # ----------------------------------------------------------------------------------------------- fit
     def fit(self, u: Any, y: Any, sample_weight: Any = None) -> HammersteinWiener:
         """Minimise the simulation error from the chosen start (module docstring); returns ``self``.
@@ -273,7 +258,7 @@ class HammersteinWiener:
         if np.ndim(self.smoothness) > 0 and grid.size > 1:
             # smoother first, so a tie goes to the smoother value (the earlier candidate wins ties)
             lams = sorted({float(lam) for lam in grid}, reverse=True)
-            templates = [self._clone(smoothness=lam) for lam in lams]
+            templates = [self.clone(smoothness=lam) for lam in lams]
             fits = _holdout_scores(templates, u, y, self.holdout, sample_weight)
             scores = dict(zip(lams, fits))
             best = lams[int(np.argmax(fits))]
@@ -316,7 +301,7 @@ class HammersteinWiener:
             fitted = []
             for th_start, label in starts:
                 th = self._solve(st, th_start, u_arr, Y, w_in, smoothness)[0]
-                cand = self._clone()
+                cand = self.clone()
                 cand._store(st, th)
                 try:
                     score = _holdout_fit(cand, u_arr, Y, n_in, n_end, keep)
@@ -704,18 +689,6 @@ class HammersteinWiener:
         obj.initial_cost_ = float(meta["initial_cost_"])
         obj.n_params_ = int(meta["n_params_"])
         obj._realise()
-        return obj
-
-    def save(self, path: str | Path) -> Path:
-        """Save as ``<path>.json`` + ``<path>.npz`` (see :mod:`ident.io`); returns the JSON path."""
-        return save_model(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> HammersteinWiener:
-        """Load a model saved with :meth:`save`."""
-        obj = load_model(path)
-        if not isinstance(obj, cls):
-            raise TypeError(f"{path} holds a {type(obj).__name__}, not a {cls.__name__}")
         return obj
 
 

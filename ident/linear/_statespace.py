@@ -16,14 +16,11 @@ Initial state (documented choice, used by every linear model):
 """
 from __future__ import annotations
 
-import inspect
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ident.base import as_2d, as_vector, check_is_fitted, check_not_constant, check_same_length
-from ident.io import load_model, save_model
+from ident.base import BaseEstimator, as_2d, as_vector, check_is_fitted, check_not_constant, check_same_length
 from ident.linear._kernels import sensitivity_outputs, state_sequence
 
 
@@ -198,7 +195,7 @@ def ss_sensitivities(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,
     return yhat, J
 
 
-class LinearStateSpaceModel:
+class LinearStateSpaceModel(BaseEstimator):
     """Base of all linear models: subclasses set ``A_, B_, C_, D_`` (and ``K_``, the innovation gain used by
     :meth:`predict_k_step`; zero for output-error models) in ``fit``.
 
@@ -207,16 +204,6 @@ class LinearStateSpaceModel:
 
     _saved_arrays: tuple[str, ...] = ()
     _saved_meta: tuple[str, ...] = ()
-
-    # -------------------------------------------------------------------------------------- parameters
-    def get_params(self) -> dict[str, Any]:
-        """Constructor arguments as stored (scikit-learn convention)."""
-        sig = inspect.signature(type(self).__init__)
-        return {k: getattr(self, k) for k in sig.parameters if k != "self"}
-
-    def __repr__(self) -> str:
-        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
-        return f"{type(self).__name__}({args})"
 
     @property
     def n_states_(self) -> int:
@@ -371,18 +358,6 @@ class LinearStateSpaceModel:
             setattr(obj, k, v)
         for k, v in meta.get("learned", {}).items():
             setattr(obj, k, v)
-        return obj
-
-    def save(self, path: str | Path) -> Path:
-        """Save as ``<path>.json`` + ``<path>.npz`` (see :mod:`ident.io`); returns the JSON path."""
-        return save_model(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> LinearStateSpaceModel:
-        """Load a model saved with :meth:`save`."""
-        obj = load_model(path)
-        if not isinstance(obj, cls):
-            raise TypeError(f"{path} holds a {type(obj).__name__}, not a {cls.__name__}")
         return obj
 
 
