@@ -36,7 +36,9 @@ the last ``holdout`` of the estimation data given zero weight and scored by the 
 :func:`select_by_holdout` scores); the best is refitted on all of it from where it ended (``restart_scores_``).
 ``"auto"`` gives 4 restarts when a block is even (:class:`AbsoluteValue`, :class:`EvenPolynomial`: through an even
 block the best linear approximation of a system driven by a symmetric input is zero, so neither deterministic start
-can find the linear block) and none otherwise.
+can find the linear block), also when a free output block can take an even shape (linear in more than two
+parameters: piecewise-linear, polynomial) and the deterministic start explains less than half of the output
+variance (``AUTO_RESTART_R2``: the signature of such a nonlinearity), and none otherwise (no ``init_model``).
 
 Options against overfitting flexible input blocks (Paper IV's M-V):
 
@@ -91,8 +93,11 @@ from ident.metrics import fit_percent
 
 __all__ = ["HammersteinWiener", "hammerstein", "select_by_holdout", "wiener"]
 
-#: Random restarts ``n_restarts="auto"`` gives a model with an even block.
-AUTO_RESTARTS_EVEN = 4
+#: Random restarts ``n_restarts="auto"`` gives when it restarts (module docstring).
+AUTO_RESTARTS = 4
+#: ``n_restarts="auto"`` restarts a model with a flexible output block when its deterministic start explains less
+#: than this fraction of the output variance (the best linear approximation vanishes behind an even nonlinearity).
+AUTO_RESTART_R2 = 0.5
 
 
 def _orders(value: Any, ny: int, nu: int, name: str) -> np.ndarray:
@@ -282,15 +287,28 @@ class HammersteinWiener(BaseEstimator):
         if self.initial not in ("zero", "steady"):
             raise ValueError(f"initial must be 'zero' or 'steady', got {self.initial!r}")
 
-    def _n_restarts(self, st: Structure) -> int:
+    def _n_restarts(self, st: Structure) -> int | None:
+        """Random restarts, or None when "auto" decides after seeing the deterministic start."""
         if self.n_restarts == "auto":
-            return AUTO_RESTARTS_EVEN if any(b.even for b in st.blocks + st.outs) else 0
+            if any(b.even for b in st.blocks + st.outs):
+                return AUTO_RESTARTS
+            flexible = any(b.n_free() and b.linear_in_params() and b.n_params() > 2 for b in st.outs)
+            return None if flexible and self.init_model is None else 0
         return int(self.n_restarts)
 
     def _fit_once(self, u: Any, y: Any, smoothness: float, sample_weight: Any = None) -> HammersteinWiener:
         u_arr, Y, base = self._validate(u, y)
         n = len(Y)
         restarts = self._n_restarts(base)
+        det = None
+        if restarts is None:
+            # a flexible output block (piecewise-linear, polynomial): restart when the start explains little
+            det = self._deterministic_start(base, u_arr, Y, sample_weight)
+            sw = self._sqrt_weights(sample_weight, n)
+            e = sw[:, None] * (Y - det[0].simulate(det[1], u_arr, False)[0])
+            d = sw[:, None] * (Y - np.average(Y, axis=0, weights=sw ** 2))
+            r2 = 1.0 - float(np.sum(e ** 2)) / max(float(np.sum(d ** 2)), 1e-300)
+            restarts = AUTO_RESTARTS if r2 < AUTO_RESTART_R2 else 0
         scores: list[float] = []
         if restarts:
             w_in, n_in, n_end, keep = _holdout_split(sample_weight, n, self.holdout)
@@ -311,7 +329,7 @@ class HammersteinWiener(BaseEstimator):
                 fitted.append((th, label))
             th0, how = fitted[int(np.argmax(scores))]
         else:
-            st, th0, how = self._deterministic_start(base, u_arr, Y, sample_weight)
+            st, th0, how = det if det is not None else self._deterministic_start(base, u_arr, Y, sample_weight)
         th, cost, cost0, res = self._solve(st, th0, u_arr, Y, sample_weight, smoothness)
         self._store(st, th)
         self.cost_ = cost
