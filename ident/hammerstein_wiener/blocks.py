@@ -107,11 +107,12 @@ class StaticNonlinearity:
 
     def fit_params(self, x: np.ndarray, target: np.ndarray) -> np.ndarray | None:
         """Least-squares parameters with ``g(x; p)`` closest to ``target`` (within :meth:`bounds`), or None when the
-        block is not linear in its parameters. Call :meth:`initial_params` on the data first (it places knots)."""
+        block is not linear in its parameters. Data-dependent constants (knots) are placed on ``x`` if not set yet."""
         if not self.linear_in_params():
             return None
         x, target = _x(x), _x(target)
-        phi = self.dp(x, np.zeros(self.n_params()))
+        p0 = self.initial_params(x)   # idempotent; places the knots of a piecewise-linear block
+        phi = self.dp(x, p0)
         lo, hi = self.bounds()
         if np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)):
             from scipy.optimize import lsq_linear
@@ -123,15 +124,16 @@ class StaticNonlinearity:
         """Parameters for a random restart: :meth:`fit_params` to ``m + s (a z + b (z^2 - 1))`` over the data
         (``z = (x - m) / s``, m and s the mean and SD of x, a and b standard normal), i.e. a random mix of a line and
         a parabola (an odd block keeps the line, an even one the parabola); the initial parameters for blocks it
-        cannot fit. Call :meth:`initial_params` on the data first."""
+        cannot fit."""
         x = _x(x)
+        p0 = self.initial_params(x)
         m, s = float(np.mean(x)), float(np.std(x))
         if s <= 0:
-            return self.initial_params(x)
+            return p0
         z = (x - m) / s
         a, b = rng.standard_normal(2)
         p = self.fit_params(x, m + s * (a * z + b * (z * z - 1.0)))
-        return self.initial_params(x) if p is None else p
+        return p0 if p is None else p
 
     def to_dict(self) -> dict[str, Any]:
         return {"type": type(self).__name__, **{k: _plain(v) for k, v in vars(self).items()}}

@@ -8,10 +8,13 @@ from scipy.signal import lfilter
 from ident.base import NotFittedError
 from ident.excitation import RandomSteps
 from ident.hammerstein_wiener import (
+    AbsoluteValue,
     Arrhenius,
     DeadZone,
+    EvenPolynomial,
     HammersteinWiener,
     Identity,
+    OddPolynomial,
     PiecewiseLinear,
     Polynomial,
     Saturation,
@@ -32,6 +35,9 @@ BLOCKS = [
     (Saturation(-0.5, 1.2, estimate=True), np.linspace(-2, 2, 41)),
     (DeadZone(-0.3, 0.4), np.linspace(-2, 2, 41)),
     (Polynomial(3, coefficients=[0.1, 1.0, -0.3, 0.2]), np.linspace(-2, 2, 41)),
+    (OddPolynomial(5, coefficients=[0.8, -0.2, 0.05]), np.linspace(-2, 2, 41)),
+    (EvenPolynomial(4, coefficients=[0.1, 0.7, -0.1], centre=0.33), np.linspace(-2, 2, 41)),
+    (AbsoluteValue(centre=0.27, offset=-0.4), np.linspace(-2, 2, 41)),
 ]
 
 
