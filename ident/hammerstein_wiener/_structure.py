@@ -122,7 +122,7 @@ class Structure:
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = np.full(self.n_theta(), -np.inf), np.full(self.n_theta(), np.inf)
         s_in, _, s_out = self.slices()
-        for blk, s in zip(self.blocks + self.outs, s_in + s_out):
+        for blk, s in zip(self.blocks + self.outs, s_in + s_out, strict=True):
             if blk.n_free():
                 lo[s], hi[s] = blk.bounds()
         return lo, hi
@@ -132,8 +132,8 @@ class Structure:
                                                  list[np.ndarray]]:
         """theta -> (input params, b[j][i], eta[j][i], output params), fixed values filled in."""
         s_in, s_lin, s_out = self.slices()
-        p_in = [theta[s] if b.n_free() else p0 for b, s, p0 in zip(self.blocks, s_in, self.p0_in)]
-        p_out = [theta[s] if b.n_free() else p0 for b, s, p0 in zip(self.outs, s_out, self.p0_out)]
+        p_in = [theta[s] if b.n_free() else p0 for b, s, p0 in zip(self.blocks, s_in, self.p0_in, strict=True)]
+        p_out = [theta[s] if b.n_free() else p0 for b, s, p0 in zip(self.outs, s_out, self.p0_out, strict=True)]
         bs: list[list[np.ndarray]] = []
         etas: list[list[np.ndarray]] = []
         for j in range(self.ny):
@@ -155,12 +155,13 @@ class Structure:
     def pack(self, p_in: list[np.ndarray], bs: list[list[np.ndarray]], etas: list[list[np.ndarray]],
              p_out: list[np.ndarray]) -> np.ndarray:
         """Inverse of :meth:`unpack` (a constrained pair's last numerator coefficient is dropped)."""
-        parts: list[np.ndarray] = [np.asarray(p, dtype=float) for b, p in zip(self.blocks, p_in) if b.n_free()]
+        parts: list[np.ndarray] = [np.asarray(p, dtype=float)
+                                   for b, p in zip(self.blocks, p_in, strict=True) if b.n_free()]
         for j in range(self.ny):
             for i in range(self.nu):
                 b = np.asarray(bs[j][i], dtype=float)
                 parts += [b[:-1] if np.isfinite(self.gain[j, i]) else b, np.asarray(etas[j][i], dtype=float)]
-        parts += [np.asarray(p, dtype=float) for b, p in zip(self.outs, p_out) if b.n_free()]
+        parts += [np.asarray(p, dtype=float) for b, p in zip(self.outs, p_out, strict=True) if b.n_free()]
         return np.concatenate(parts) if parts else np.zeros(0)
 
     # ---------------------------------------------------------------------------------------- simulation

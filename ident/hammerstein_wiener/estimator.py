@@ -265,7 +265,7 @@ class HammersteinWiener(BaseEstimator):
             lams = sorted({float(lam) for lam in grid}, reverse=True)
             templates = [self.clone(smoothness=lam) for lam in lams]
             fits = _holdout_scores(templates, u, y, self.holdout, sample_weight)
-            scores = dict(zip(lams, fits))
+            scores = dict(zip(lams, fits, strict=True))
             best = lams[int(np.argmax(fits))]
         else:
             best = float(grid[0])
@@ -421,7 +421,7 @@ class HammersteinWiener(BaseEstimator):
         # roughness rows: sqrt(smoothness * N) * R_i p_i for every free input block that has a roughness measure
         rough_rows: list[np.ndarray] = []
         s_in = st.slices()[0]
-        for blk, s in zip(st.blocks, s_in):
+        for blk, s in zip(st.blocks, s_in, strict=True):
             R = blk.roughness_matrix() if smoothness > 0 and blk.n_free() else None
             if R is not None and R.size:
                 rows = np.zeros((R.shape[0], th0.size))
@@ -534,7 +534,7 @@ class HammersteinWiener(BaseEstimator):
         """The static input blocks' outputs v, shape (N, n_inputs)."""
         u = self._u(u)
         return np.column_stack([b.value(u[:, i], p) for i, (b, p) in
-                                enumerate(zip(self.input_blocks_, self.input_params_))])
+                                enumerate(zip(self.input_blocks_, self.input_params_, strict=True))])
 
     def output_nonlinearity(self, w: Any) -> np.ndarray:
         """h(w) for the linear block's outputs w (shape (N,) for one output, or (N, n_outputs)); same shape back."""
@@ -546,7 +546,7 @@ class HammersteinWiener(BaseEstimator):
         if w2.shape[1] != self.n_outputs_:
             raise ValueError(f"w must have {self.n_outputs_} columns, got shape {w.shape}")
         return np.column_stack([b.value(w2[:, j], p) for j, (b, p) in
-                                enumerate(zip(self.output_blocks_, self.output_params_))])
+                                enumerate(zip(self.output_blocks_, self.output_params_, strict=True))])
 
     def _y(self, name: str, y: Any) -> np.ndarray:
         y = np.asarray(y, dtype=float)
@@ -583,7 +583,7 @@ class HammersteinWiener(BaseEstimator):
                 w = w_zero + obs @ x0
                 r = (y - out(x0)).ravel()
                 dh = np.column_stack([b.dx(w[:, j], p) for j, (b, p) in
-                                      enumerate(zip(self.output_blocks_, self.output_params_))])
+                                      enumerate(zip(self.output_blocks_, self.output_params_, strict=True))])
                 J = (dh[:, :, None] * obs).reshape(n0 * ny, n)
                 # truncated least squares: directions the data barely observe (fast modes that died out, modes
                 # hidden behind the saturation) stay put instead of taking huge steps the linearisation does not
@@ -654,11 +654,12 @@ class HammersteinWiener(BaseEstimator):
         check_is_fitted(self, "b_")
         x = ca.SX.sym("x", self.n_states_)
         u = ca.SX.sym("u", self.n_inputs_)
-        v = ca.vertcat(*[b.casadi(u[i], p) for i, (b, p) in enumerate(zip(self.input_blocks_, self.input_params_))])
+        v = ca.vertcat(*[b.casadi(u[i], p) for i, (b, p) in
+                         enumerate(zip(self.input_blocks_, self.input_params_, strict=True))])
         x_next = ca.mtimes(ca.DM(self.A_), x) + ca.mtimes(ca.DM(self.B_), v)
         w = ca.mtimes(ca.DM(self.C_), x) + ca.mtimes(ca.DM(self.D_), v)
         y = ca.vertcat(*[b.casadi(w[j], p) for j, (b, p) in enumerate(zip(self.output_blocks_,
-                                                                          self.output_params_))])
+                                                                          self.output_params_, strict=True))])
         return ca.Function("step", [x, u], [x_next, y], ["x", "u"], ["x_next", "y"])
 
     # ---------------------------------------------------------------------------------------------- saving

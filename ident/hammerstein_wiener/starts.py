@@ -45,7 +45,7 @@ def longest_run(mask: np.ndarray) -> tuple[int, int]:
 
 def block_outputs(st: Structure, u: np.ndarray, p_in: list[np.ndarray]) -> np.ndarray:
     """v (N, nu): the input blocks' outputs at ``p_in``."""
-    return np.column_stack([b.value(u[:, i], p) for i, (b, p) in enumerate(zip(st.blocks, p_in))])
+    return np.column_stack([b.value(u[:, i], p) for i, (b, p) in enumerate(zip(st.blocks, p_in, strict=True))])
 
 
 def linear_start(st: Structure, u: np.ndarray, Y: np.ndarray, p_in: list[np.ndarray], run: tuple[int, int],
@@ -230,8 +230,8 @@ def random_start(st: Structure, u: np.ndarray, Y: np.ndarray, run: tuple[int, in
     a, b = run
     ua, Ya = u[a:b], Y[a:b]
     p_in = [blk.random_params(ua[:, i], rng) if blk.n_free() else p0
-            for i, (blk, p0) in enumerate(zip(st.blocks, st.p0_in))]
-    p_in = [np.clip(p, *blk.bounds()) if blk.n_free() else p for blk, p in zip(st.blocks, p_in)]
+            for i, (blk, p0) in enumerate(zip(st.blocks, st.p0_in, strict=True))]
+    p_in = [np.clip(p, *blk.bounds()) if blk.n_free() else p for blk, p in zip(st.blocks, p_in, strict=True)]
     v = block_outputs(st, ua, p_in)
     v = (v - v.mean(axis=0)) / np.maximum(v.std(axis=0), 1e-12)   # for scaling B only
     tau_max = max(10.0, len(ua) / 10.0)

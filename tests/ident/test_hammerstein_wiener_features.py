@@ -206,7 +206,8 @@ def test_odd_polynomial_input_block() -> None:
     0.01) and the validation FIT is >= 99 %."""
     def record(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
         u = _inputs(n, seed)
-        return u, lfilter([0, 0.3], [1, -0.7], u - 0.2 * u ** 3) + 0.005 * np.random.default_rng(seed).standard_normal(n)
+        noise = 0.005 * np.random.default_rng(seed).standard_normal(n)
+        return u, lfilter([0, 0.3], [1, -0.7], u - 0.2 * u ** 3) + noise
 
     u, y = record(1200, 41)
     uv, yv = record(600, 42)
