@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         print(r["rpem_error"])
     if "hw_pwl_fit_s" in r:
         print(f"Hammerstein-Wiener PWL fit, {r['hw_pwl_n_samples']:,} samples  {r['hw_pwl_fit_s']:>8.1f} s   "
-              f"(goal 10 s; validation FIT {r['hw_pwl_validation_fit']:.1f} %)")
+              f"(goal 10 s; CPU {r['hw_pwl_cpu_s']:.1f} s; validation FIT {r['hw_pwl_validation_fit']:.1f} %)")
     if args.json:
         write_json(args.json, r)
     return r
