@@ -254,3 +254,20 @@ def test_speed_benchmark_smoke() -> None:
     assert r["hw_pwl_n_samples"] == 3000 and r["hw_pwl_fit_s"] > 0 and r["hw_pwl_validation_fit"] > 90.0
     with pytest.raises(ValueError, match="n_samples"):
         measure_pwl_fit_speed(n_samples=10)
+
+
+def test_single_output_state_of_the_earlier_layout_still_loads() -> None:
+    """Model files written before the multi-output model (one output block, 2-D b_ and f_) rebuild the same model."""
+    u = np.column_stack([_inputs(300, 71), _inputs(300, 72)])
+    y = np.maximum(lfilter([0, 0.5], [1, -0.7], u[:, 0]) + lfilter([0, 0.2], [1, -0.5], u[:, 1]), -0.4)
+    m = wiener(Saturation(-0.4), nb=1, nf=1, max_nfev=20).fit(u, y)
+    meta, arrays = m._get_state()
+    old_meta = {k: v for k, v in meta.items() if k != "output_blocks_"}
+    old_meta["output_block_"] = meta["output_blocks_"][0]
+    for k in ("start", "n_restarts", "random_state"):
+        old_meta["params"] = {p: v for p, v in old_meta["params"].items() if p != k}
+    old_arrays = {k: v for k, v in arrays.items() if not k.startswith("output_params_")}
+    old_arrays.update(b_=arrays["b_"][0], f_=arrays["f_"][0], output_params_=arrays["output_params_0"])
+    again = HammersteinWiener._from_state(old_meta, old_arrays)
+    np.testing.assert_array_equal(again.predict(u), m.predict(u))
+    assert again.b_.shape == m.b_.shape
