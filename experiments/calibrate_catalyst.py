@@ -16,7 +16,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_results
 from scr_env import calibration as cal
 from scr_env.params import CatalystParams
 
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--json", type=Path, help="also write the results to this JSON file")
     ap.add_argument("--quick", action="store_true", help="unaged fit only (smoke run)")
     args = ap.parse_args(argv)
-    folder = run_folder("calibrate_catalyst")  # created first: a bad location fails before the fit
+    folder = run_folder("calibrate_catalyst", json_path=args.json)  # created and checked before the fit
     values = calibrate(args.quick)
     for k, v in values["catalyst_params"].items():
         print(f"{k:26s} {v:.6g}")
@@ -66,9 +66,7 @@ def main(argv: list[str] | None = None) -> dict:
     for k, v in fit["residuals"].items():
         if abs(v) > 1.5:
             print(f"  {k:40s} {v:+.2f}")
-    write_json(folder / "calibration.json", values)
-    if args.json:
-        write_json(args.json, values)
+    save_results(folder, "calibration.json", values, args.json)
     print(f"run folder: {folder}")
     return values
 

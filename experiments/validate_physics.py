@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_figure, save_results
 from scr_env import catalyst_data as cd
 from scr_env.lab import steady_state
 from scr_env.lab_validation import SPECIES, lab_points, plateau_points, rms_summary, transient_replays
@@ -75,7 +75,8 @@ def plot_lab(preset: str, points: list[dict], path: Path) -> None:
     for a in axes.flat:
         a.grid(alpha=0.3), a.legend(fontsize=7), a.set_xlim(140, 600)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with save_figure(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
 
@@ -103,7 +104,8 @@ def plot_ages(preset: str, points: list[dict], path: Path) -> None:
     axes[0, 0].legend(title="age (lines simulated,\nmarkers measured)", fontsize=8)
     fig.suptitle(f"'{preset}' against the five-age CLEERS plateaus (Cu-SSZ-13, hydrothermal ageing)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with save_figure(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
 
@@ -125,7 +127,8 @@ def plot_transients(runs: list[dict], path: Path) -> None:
         ax.legend(fontsize=7, ncol=5, loc="upper right")
     axes[-1, 0].set_xlabel("time [min]")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with save_figure(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
 
 
@@ -135,7 +138,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--preset", default="cu_zeolite", help="catalyst preset (default cu_zeolite)")
     parser.add_argument("--no-transients", action="store_true", help="skip the transient replays (faster)")
     args = parser.parse_args(argv)
-    folder = run_folder("validate_physics")  # created first: a bad location fails before the run
+    folder = run_folder("validate_physics", json_path=args.json)  # created and checked before the work
 
     points = lab_points(args.preset) + plateau_points(args.preset)
     judged = [p for p in points if p["within_tolerance"] is not None]
@@ -159,9 +162,7 @@ def main(argv: list[str] | None = None) -> dict:
                   + ", ".join(f"{sp} {r['rms_ppm']['all'][sp]:.1f}" for sp in SPECIES))
         result["transients"] = [{k: r[k] for k in ("temperature_c", "age_h", "n_samples", "rms_ppm")} for r in runs]
         plot_transients(runs, folder / "validation_transients.png")
-    write_json(folder / "validation.json", result)
-    if args.json:
-        write_json(args.json, result)
+    save_results(folder, "validation.json", result, args.json)
     plot_lab(args.preset, points, folder / "validation.png")
     plot_ages(args.preset, points, folder / "validation_ages.png")
     print(f"run folder: {folder}")
