@@ -23,7 +23,8 @@ from scr_env.params import CatalystParams
 #: the lumped set of lumped_cu_ssz13_params.txt (its storage capacity replaced by the saturation of the cats
 #: sites, fixed), and starting guesses for the rest [chosen: orders of magnitude of the previous calibration; the
 #: fit moves them]
-START = {"storage_capacity_mol_m3": cal.CATS_SATURATION_MOL_M3, "a_des_1_s": 2.984e8, "e_des_j_mol": 92.66e3, "temkin_gamma": 0.95,
+START = {"storage_capacity_mol_m3": cal.CATS_SATURATION_MOL_M3, "a_des_1_s": 2.984e8, "e_des_j_mol": 92.66e3,
+         "temkin_gamma": 0.95,
          "a_std_m3_mol_s": 6.717e6, "e_std_j_mol": 66.95e3, "a_ox_1_s": 7.103e5, "e_ox_j_mol": 107.85e3,
          "a_n2o_m3_mol_s": 1.0e5, "a_ox_no_1_s": 2.834e13, "e_ox_no_j_mol": 225.98e3, "a_ox_n2o_1_s": 1.0e11,
          "a_no_ox_m3_mol_s": 64.0, "e_no_ox_j_mol": 45.0e3, "o2_order_ox": 0.5}

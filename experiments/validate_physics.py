@@ -90,7 +90,7 @@ def plot_ages(preset: str, points: list[dict], path: Path) -> None:
               ("nh3_oxidation", "nh3_out_fraction", "NH3 oxidation: NH3 out / in [-]", {"nh3_ppm": 299.0}),
               ("no_only", "no2_out_ppm", "NO oxidation: NO2 out [ppm]", {"no_ppm": 297.0}))
     t_sim = np.arange(240.0, 561.0, 10.0)
-    for ax, (case, q, title, feed) in zip(axes.flat, panels):
+    for ax, (case, q, title, feed) in zip(axes.flat, panels, strict=True):
         for i, age in enumerate(cd.AGES_H):
             sel = [p for p in points if p["case"] == case and p["quantity"] == q and p["age_h"] == age
                    and p.get("first_no_only", True)]
@@ -114,7 +114,7 @@ def plot_transients(runs: list[dict], path: Path) -> None:
     plt = _plt()
     shown = [r for key in _SHOWN_RUNS for r in runs if (r["temperature_c"], r["age_h"]) == key]
     fig, axes = plt.subplots(len(shown), 1, figsize=(12, 3.0 * len(shown)), squeeze=False)
-    for ax, r in zip(axes[:, 0], shown):
+    for ax, r in zip(axes[:, 0], shown, strict=False):
         t = r["time_min"]
         ax.plot(t, r["inlet"]["NH3_in_ppm"], color="0.7", lw=1, label="NH3 in")
         for sp, col in (("NH3", "C3"), ("NO", "C0"), ("NO2", "C2"), ("N2O", "C4")):

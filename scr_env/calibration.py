@@ -136,7 +136,7 @@ def nitrate_route(a_std_m3_mol_s: float, e_std_j_mol: float) -> dict[str, float]
     return out
 
 
-# --- the lab sample on packed parameters (fast path of scr_env.lab.steady_state) ----------------------------------------
+# --- the lab sample on packed parameters (fast path of scr_env.lab.steady_state) -----------------------------------
 def lab_outlet(p: np.ndarray, capacity: float, t_c: float, nh3_ppm: float = 0.0, no_ppm: float = 0.0,
                no2_ppm: float = 0.0, o2_percent: float = 10.0) -> tuple[float, float, float, float]:
     """Steady (NH3, NO, NO2, N2O) outlet [ppm] of the 10-cell lab sample with packed parameters ``p``."""
@@ -186,7 +186,8 @@ class Residual:
 
 def plateau_residuals(age_h: float) -> list[Residual]:
     """Residuals of the five-age plateaus of one age: standard-SCR NOx conversion (scale 0.025) and N2O (1.5 ppm),
-    NH3-oxidation NH3 outlet fraction (0.04), NOx formed (5 ppm) and N2O (1.5 ppm), the steady NO2 of the first NO-only plateau
+    NH3-oxidation NH3 outlet fraction (0.04), NOx formed (5 ppm) and N2O (1.5 ppm), the steady NO2 of the first
+    NO-only plateau
     (2.5 ppm + 12.5 %), and the NH3 outlet fraction of the storage step in 0.2 % O2 (0.05); half the acceptance
     tolerances where PHYSICS.md gives one [chosen: fit inside the band]."""
     res: list[Residual] = []
@@ -287,7 +288,7 @@ def _encode(cat: CatalystParams, fields: Sequence[tuple[str, str]]) -> np.ndarra
 
 def _decode(x: np.ndarray, cat: CatalystParams, fields: Sequence[tuple[str, str]]) -> CatalystParams:
     ch = {}
-    for v, (f, kind) in zip(x, fields):
+    for v, (f, kind) in zip(x, fields, strict=True):
         ch[f] = float(math.exp(v) if kind == "log" else v * 1e3 if kind == "kj" else v)
     return dataclasses.replace(cat, **ch)
 
@@ -318,7 +319,7 @@ def fit_unaged(start: CatalystParams, rounds: int = 2, verbose: bool = False) ->
                             max_nfev=400, verbose=2 if verbose else 0)
         cat = with_nitrate(_decode(fit.x, base, UNAGED_FIELDS))
     final = _residual_vector(res, pack(cat), cat.storage_capacity_effective_mol_m3)
-    return cat, {"residuals": {r.label: float(v) for r, v in zip(res, final)},
+    return cat, {"residuals": {r.label: float(v) for r, v in zip(res, final, strict=True)},
                  "rms_scaled_residual": float(np.sqrt(np.mean(final ** 2))), "nfev": int(fit.nfev)}
 
 
@@ -390,7 +391,7 @@ def fit_all(start: CatalystParams, verbose: bool = False) -> tuple[CatalystParam
     cat, tab = split(fit.x)
     final = fun(fit.x)
     labels = [r.label for r in res0] + [r.label for a in ages for r in res[a]]
-    return cat, tab, {"residuals": dict(zip(labels, map(float, final))),
+    return cat, tab, {"residuals": dict(zip(labels, map(float, final), strict=True)),
                       "rms_scaled_residual": float(np.sqrt(np.mean(final ** 2))), "nfev": int(fit.nfev),
                       "status": fit.message}
 

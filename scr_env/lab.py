@@ -27,10 +27,10 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-import numba
 import numpy as np
 
 from scr_env.constants import ATMOSPHERIC_PRESSURE_PA, GAS_CONSTANT_J_MOL_K
+from scr_env.jit import njit
 from scr_env.params import KINETIC_SLICE, CatalystParams, catalyst_preset, check_age_h, pack
 from scr_env.physics.backends import rate_constants_nb
 from scr_env.physics.kernel import catalyst_chemistry, solve_coverage
@@ -282,7 +282,7 @@ def _outlet_at(theta: np.ndarray, t_k: float, q: float, nh3: float, no: float, n
     return y[0], y[1], y[2], n2o
 
 
-@numba.njit(cache=True)
+@njit
 def _replay_loop(theta, temps_k, q, nh3, no, no2, o2, dt_s, p, out, stored):  # pragma: no cover - compiled
     """Implicit Euler through the samples: the interval k-1 -> k holds the inlet of sample k-1; out[k] is the
     outlet at sample k (y_nh3, y_no, y_no2, y_n2o), stored[k] the mean coverage."""

@@ -121,7 +121,7 @@ def transient_replays(catalyst: object = "cu_zeolite", keys: list[tuple[float, f
         rec = cd.step_records(t_c, age, segment=1)
         sim = run_protocol(rec, t_c, catalyst=catalyst, age_h=age)
         kinds = np.array([_segment_kind(o, a, n) for o, a, n in
-                          zip(rec["O2_in_percent"], rec["NH3_in_ppm"], rec["NO_in_ppm"])])
+                          zip(rec["O2_in_percent"], rec["NH3_in_ppm"], rec["NO_in_ppm"], strict=True)])
         rms: dict[str, dict[str, float]] = {"all": {}}
         for sp in SPECIES:
             err = sim[f"{sp}_out_ppm"] - rec[f"{sp}_out_ppm"]

@@ -189,7 +189,10 @@ def ageing_factors(age_h: float, table: dict[float, dict[str, float]] | None = N
     out = {}
     for key in table[lo]:
         a, b = table[lo][key], table[hi][key]
-        out[key] = a + w * (b - a) if key.endswith("_j_mol") else math.exp(math.log(a) + w * (math.log(b) - math.log(a)))
+        if key.endswith("_j_mol"):
+            out[key] = a + w * (b - a)
+        else:
+            out[key] = math.exp(math.log(a) + w * (math.log(b) - math.log(a)))
     return out
 
 

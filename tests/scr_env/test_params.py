@@ -92,7 +92,7 @@ def test_randomised_is_reproducible_per_seed_and_bounded():
     # ageing as a randomised quantity: uniform in the range, drawn after the factors (same factors per seed)
     ages = [randomised(cat, np.random.default_rng(s), 0.2, age_h_range=(2.0, 8.0)) for s in range(50)]
     assert all(2.0 <= d.age_h <= 8.0 for d in ages) and np.std([d.age_h for d in ages]) > 1.0
-    assert all(a.replace(age_h=0.0) == d for a, d in zip(ages, draws))
+    assert all(a.replace(age_h=0.0) == d for a, d in zip(ages, draws, strict=True))
 
 
 def test_randomised_rejects_bad_spread_and_age_range():
