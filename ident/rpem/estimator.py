@@ -15,7 +15,7 @@ from ident.metrics import fit_percent
 from ident.rpem import kernel
 from ident.rpem.kalman_init import DEFAULT_KALMAN_OPTIONS, ekf_initial_theta, ekf_state_estimates, kalman_options
 from ident.rpem.regressors import polynomial_terms
-from ident.rpem.start import equation_error_theta, time_scale, unfold_sign
+from ident.rpem.start import equation_error_theta, time_scale, unfold_candidates, unfold_sign
 from ident.rpem.structure import INPUT_TRANSFORMS, ChainStructure, apply_input_transforms, method_code
 
 #: Static output functions ``y = h(x1, eta)``: name -> kernel code.
@@ -138,8 +138,9 @@ class RecursivePEM(BaseEstimator):
         ``p0``, ``q_state``, ``q_theta``, ``r``, ``n_passes`` for the EKF (defaults: Paper III's 10, 50, 0, 3, 1).
     n_passes : int
         Largest number of passes of ``fit`` over the data (a positive integer); passes stop once the fit (see
-        ``keep``) stops improving by more than ``pass_tol`` percent (for three passes in a row with ``pass_mode=
-        "continue"``). Each pass restarts the state and (see ``pass_mode``) R, Lambda and the gain.
+        ``keep``) stops improving by more than ``pass_tol`` percent (for three passes in a row with the automatic
+        choices; ``pass_mode="continue"`` runs them all). Each pass restarts the state and (see ``pass_mode``) R,
+        Lambda and the gain.
     pass_tol : float
         Required improvement of the FIT (percent, >= 0) to continue passing.
     output : {"identity", "polynomial", "abs", "saturation"}
@@ -428,6 +429,8 @@ class RecursivePEM(BaseEstimator):
         self.n_samples_seen_ = 0
         self.n_rejected_ = 0
         self.n_bound_hits_ = 0
+        self.gain_ = 1.0
+        self.forgetting_ = float(self.forgetting_initial)
 
     # ------------------------------------------------------------------ data handling
     def _validate(self, u: Any, y: Any | None = None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -521,6 +524,7 @@ class RecursivePEM(BaseEstimator):
         N = len(ym)
         autos = (self.init == "auto" or self.half_step_input == "auto" or self.pass_mode == "auto"
                  or int(self.n_restarts) > 0)
+        self._autos = autos
         frac = (0.2 if autos else 0.0) if self.holdout is None else float(self.holdout)
         n_hold = round(frac * N) if N >= 100 else 0
         tuned = self.keep == "best" and (n_passes > 1 or autos)
@@ -610,17 +614,24 @@ class RecursivePEM(BaseEstimator):
                     if th is not None:
                         cands.append((th, eta))
         if self.output != "identity":
-            # an output-error start: the same chain with the identity output fitted to the chain output the data
-            # show (the sign-unfolded output for "abs"), by this estimator's own passes
-            z = self._chain_output(ym)
+            # output-error starts: the same chain with the identity output fitted, by this estimator's own passes,
+            # to the chain output the data show; for "abs" to each of several sign-unfolded versions of the output
+            eta_pre = variants[0][1]
+            if self.output == "abs":
+                per_output = [unfold_candidates(ym[:, k], eta_pre[k, 0], um, int(self.n_states))
+                              for k in range(self.n_outputs_)]
+                targets = [np.column_stack([c[min(i, len(c) - 1)] for c in per_output])
+                           for i in range(max(len(c) for c in per_output))]
+            else:
+                targets = [ym]
             pre = self.clone(output="identity", init="auto", half_step_input=self.half_step_input_,
                              alpha=float(self.alpha_), n_substeps=int(self.n_substeps_), normalize=False,
                              output_limits=None, keep="best", n_restarts=0, theta0=None)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                pre.fit(um, z)
-            eta_pre = variants[0][1]
-            cands.append((pre.theta_.copy(), eta_pre))
+            for z in targets:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    pre.fit(um, z)
+                cands.append((pre.theta_.copy(), eta_pre))
         if not cands:
             cands.append((theta0, eta0))
         scored = [(self._sim_fit(um, ym, th, eta), i) for i, (th, eta) in enumerate(cands)]
@@ -656,6 +667,14 @@ class RecursivePEM(BaseEstimator):
                                 "start": (theta.copy(), eta.copy()), "pass_fits": [], "state": None}
         fits: list[float] = []
         stale = 0
+        if tuned and self._autos:
+            # with the automatic choices the start itself is a candidate: passes that diverge from a good start
+            # must not replace it
+            self._reset_recursion(theta, eta)
+            best.update(score=self._score(um, ym, split, theta, eta), state=self._snapshot())
+        # the thesis' passes stop at the first pass that does not improve; with the automatic choices, after three;
+        # "continue" converges slowly and may sit below its start for many passes, so it runs every pass
+        patience = (1 if not self._autos else 3) if self.pass_mode_ == "restart" else n_passes
         for k in range(n_passes):
             if k == 0 or self.pass_mode_ == "restart":
                 self._reset_recursion(theta, eta)
@@ -678,10 +697,8 @@ class RecursivePEM(BaseEstimator):
                 best.update(score=fit, state=state)
                 stale = 0
             else:
-                # "restart" stops at the first pass that does not improve (the thesis' rule); "continue" converges
-                # slowly and may dip for a pass, so it stops after three passes without improvement
                 stale += 1
-                if self.pass_mode_ == "restart" or stale >= 3:
+                if stale >= patience:
                     break
         best["pass_fits"] = fits
         if best["state"] is None:

@@ -163,3 +163,67 @@ def unfold_sign(y: np.ndarray, floor: float) -> np.ndarray:
     flips[k[crossing] + 1] = 1
     sign = np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)
     return sign * np.abs(v)
+
+
+def _unfold_quadratic(v: np.ndarray, half_width: int = 3) -> np.ndarray:
+    """Signs by local smoothness: at every low local minimum of ``v = |signal|`` keep the sign, or flip it after or
+    at the minimum, whichever a quadratic through the ``2 w + 1`` samples around it fits best (a V through zero
+    becomes a straight line when flipped; a rounded dip stays smooth when kept)."""
+    n = len(v)
+    k = np.arange(1, n - 1)
+    low = (v[k] <= v[k - 1]) & (v[k] < v[k + 1]) & (v[k] <= np.quantile(v, 0.3))
+    tt = np.arange(-half_width, half_width + 1)
+    X = np.column_stack([np.ones(tt.size), tt, tt**2])
+    resid = np.eye(tt.size) - X @ np.linalg.pinv(X)
+    flips = np.zeros(n, dtype=int)
+    for c in k[low]:
+        if c - half_width < 0 or c + half_width >= n:
+            continue
+        seg = v[c - half_width:c + half_width + 1]
+        options = (seg, np.where(tt > 0, -seg, seg), np.where(tt >= 0, -seg, seg))
+        best = int(np.argmin([np.sum((resid @ o) ** 2) for o in options]))
+        if best:
+            flips[c + (1 if best == 1 else 0)] ^= 1
+    return np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0) * v
+
+
+def _decode_arx(z: np.ndarray, v: np.ndarray, u: np.ndarray, order: int, rounds: int = 4) -> np.ndarray:
+    """Signs from the one-step predictions of an ARX model fitted to the signed signal ``z`` (refitted ``rounds``
+    times): each sample takes the sign the model predicts from the samples before it."""
+    N, m = len(z), u.shape[1]
+    for _ in range(rounds):
+        Phi = np.column_stack([z[order - k:N - k] for k in range(1, order + 1)]
+                              + [u[order - k:N - k, j] for k in range(1, order + 1) for j in range(m)]
+                              + [np.ones(N - order)])
+        th = np.linalg.lstsq(Phi, z[order:], rcond=None)[0]
+        a, b, c = th[:order], th[order:order + order * m].reshape(order, m), th[-1]
+        new = z.copy()
+        for t in range(order, N):
+            pred = a @ new[t - order:t][::-1] + np.sum(b * u[t - order:t][::-1]) + c
+            new[t] = v[t] if pred >= 0.0 else -v[t]
+        if np.array_equal(np.sign(new), np.sign(z)):
+            break
+        z = new
+    return z
+
+
+def unfold_candidates(y: np.ndarray, floor: float, u: np.ndarray, n_states: int) -> list[np.ndarray]:
+    """Several signed versions of a sign-insensitive output ``y = floor + |v|`` (1-D): :func:`unfold_sign`, the
+    local-quadratic rule, and each refined by ARX one-step sign decoding of orders ``n + 1`` and ``2 n``.
+
+    A single wrong flip changes the sign of everything after it, and no rule is right on every record, so the
+    estimator fits a start to each and keeps the one whose ``|x|`` model simulates the data best (a criterion the
+    unknown overall sign cannot affect)."""
+    v = np.abs(np.asarray(y, dtype=float) - floor)
+    firsts = [unfold_sign(y, floor), _unfold_quadratic(v)]
+    out: list[np.ndarray] = []
+    for z in firsts:
+        out.append(z)
+        for order in (n_states + 1, 2 * n_states):
+            if len(v) > 10 * (order + 1) * (u.shape[1] + 1):
+                out.append(_decode_arx(z.copy(), v, u, order))
+    unique: list[np.ndarray] = []
+    for z in out:
+        if not any(abs(np.mean(np.sign(z) == np.sign(w)) - 0.5) > 0.499 for w in unique):
+            unique.append(z)
+    return unique

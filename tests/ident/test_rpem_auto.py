@@ -17,7 +17,7 @@ from ident.rpem import AUTO_SETTINGS, PAPER2_TERMS, RecursivePEM
 STRUCTURE = {
     "duffing_oscillator": {"n_states": 2, "max_degrees": 3, "total_degree": 3},
     "cascaded_tanks": {"n_states": 2, "max_degrees": 3, "total_degree": 3},
-    "coupled_drives": {"n_states": 3, "output": "abs"},
+    "coupled_drives": {"n_states": 3, "output": "abs", "max_degrees": 1, "total_degree": 1},
 }
 GOAL = {"duffing_oscillator": 95.0, "cascaded_tanks": 85.0, "coupled_drives": 70.0}
 
