@@ -25,5 +25,8 @@ test: setup
 bench: setup
 	$(VPY) -m experiments.benchmark_speed
 
+# numba's cache: the *.nbi/*.nbc files beside the compiled sources (in __pycache__), and NUMBA_CACHE_DIR if set
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) runs .pytest_cache .ruff_cache
+	find scr_env ident control experiments tests -type f \( -name '*.nbi' -o -name '*.nbc' \) -delete
+	$(if $(NUMBA_CACHE_DIR),rm -rf "$(NUMBA_CACHE_DIR)")

@@ -63,7 +63,8 @@ def _n2o_residuals(x: np.ndarray, base: CatalystParams) -> np.ndarray:
 
 def calibrate(base: CatalystParams | None = None) -> dict[str, float]:
     """Fit fast SCR (A, E) to the FastSCR plateaus, then NH3 -> NO (A, E) to the NH3-oxidation steps (NOx at 500/550 C,
-    NH3 at 400/500/550 C), then N2O formation (A) to the N2O of the standard-SCR plateaus; each with the others fixed."""
+    NH3 at 400/500/550 C), then N2O formation (A) to the N2O of the standard-SCR plateaus; each with the others
+    fixed."""
     base = base or CatalystParams()
     base = dataclasses.replace(base, a_ox_no_1_s=0.0, a_n2o_m3_mol_s=0.0)
     f = least_squares(_fast_residuals, [np.log(1e10), 60.0], args=(base,), x_scale=[1, 10])

@@ -172,6 +172,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--json", type=Path, help="also write the points to this JSON file")
     parser.add_argument("--preset", default="cu_zeolite", help="catalyst preset (default cu_zeolite)")
     args = parser.parse_args(argv)
+    folder = run_folder("validate_physics", json_path=args.json)  # created and checked before the work
 
     points = validation_points(args.preset)
     result = {"preset": args.preset, "points": points}
@@ -180,7 +181,6 @@ def main(argv: list[str] | None = None) -> dict:
     worst = max(p["error"] / p["tolerance"] for p in points)
     print(f"{n_ok}/{len(points)} points within tolerance; worst error/tolerance {worst:.2f}")
 
-    folder = run_folder("validate_physics")
     write_json(folder / "validation.json", result)
     if args.json:
         write_json(args.json, result)

@@ -148,7 +148,8 @@ class IODataset:
 
     # ----------------------------------------------------------------------------------------- slicing
     def _replace(self, **changes: Any) -> IODataset:
-        kw = {"u": self.u, "y": self.y, "dt": self.dt, "input_names": self.input_names, "output_names": self.output_names,
+        kw = {"u": self.u, "y": self.y, "dt": self.dt, "input_names": self.input_names,
+              "output_names": self.output_names,
                   "input_units": self.input_units, "output_units": self.output_units, "t0": self.t0, "meta": self.meta}
         kw.update(changes)
         return IODataset(**kw)

@@ -6,7 +6,8 @@ model instead [lit: Upadhyay and Van Nieuwstadt 2006; Schaer et al. 2006], with 
 simulation-error least squares (CasADi AD Jacobians, scipy ``least_squares``) from the signals of
 :mod:`ident.plant_data` data sets only: inputs [inlet NOx ppm, urea g/min, inlet T K, exhaust flow mol/s],
 outputs [tailpipe NOx ppm, NH3 ppm, NOx sensor ppm]. It satisfies :class:`ident.base.DynamicModel`
-(``predict``, ``to_casadi() -> Function('step', [x, u], [x_next, y])``); it lives in :mod:`ident` with the other identified models.
+(``predict``, ``to_casadi() -> Function('step', [x, u], [x_next, y])``); it lives in :mod:`ident` with the other
+identified models.
 
 Structure (n_cells CSTRs in series sharing one lumped solid temperature; gas quasi-steady):
 
@@ -48,9 +49,19 @@ from scipy.optimize import least_squares
 
 from ident.base import BaseEstimator, as_2d, check_is_fitted, check_same_length
 from ident.io import register_model
+from scr_env.constants import (
+    ATMOSPHERIC_PRESSURE_PA,
+    EXHAUST_HEAT_CAPACITY_J_KG_K,
+    EXHAUST_MOLAR_MASS_KG_MOL,
+    GAS_CONSTANT_J_MOL_K,
+    NH3_PER_UREA,
+    SECONDS_PER_MINUTE,
+    UREA_MOLAR_MASS_KG_MOL,
+)
 
-R_GAS = 8.314462618
-_CP_MOL = 0.0289 * 1250.0  # J/(mol K) exhaust
+R_GAS = GAS_CONSTANT_J_MOL_K  # J/(mol K)
+_CP_MOL = EXHAUST_MOLAR_MASS_KG_MOL * EXHAUST_HEAT_CAPACITY_J_KG_K  # J/(mol K) exhaust
+_UREA_G_MOL = UREA_MOLAR_MASS_KG_MOL * 1000.0  # g/mol (60.06)
 #: initial guess (textbook magnitudes for a Cu-zeolite brick of a 12 L engine; not the simulator's numbers)
 _NOMINAL = {"omega_mol": 8.0, "a_ads": 3.0e4, "a_des": 3.0e8, "e_des": 95e3, "gamma": 0.9, "a_scr": 2.0e8,
             "e_scr": 65e3, "a_ox": 1.0e6, "e_ox": 110e3, "heat_j_k": 5.0e4, "t50_k": 450.0}
@@ -107,14 +118,14 @@ class StorageGreyBox(BaseEstimator):
         t50 = nom["t50_k"] + 10.0 * p[9]
         e_ox = nom["e_ox"] * (1 + p[10])
         nox_ppm, urea_g_min, t_in, flow = u[0], u[1], u[2], ca.fmax(u[3], 1e-3)
-        c_tot = 101325.0 / (R_GAS * t)
+        c_tot = ATMOSPHERIC_PRESSURE_PA / (R_GAS * t)
         k_ads = nom["a_ads"] * ca.exp(p[1]) * c_tot
         k_des = nom["a_des"] * ca.exp(p[2]) * ca.exp(-e_des / (R_GAS * t))
         eg = gamma * e_des / (R_GAS * t)
         k_scr = nom["a_scr"] * ca.exp(p[5]) * ca.exp(-e_scr / (R_GAS * t))
         k_ox = nom["a_ox"] * ca.exp(p[7]) * ca.exp(-e_ox / (R_GAS * t))
         eta = 1.0 / (1.0 + ca.exp(-(t_in - t50) / 10.0))
-        y_nh3 = eta * ca.fmax(urea_g_min, 0) / 60.0 / 60.06 * 2.0 / flow
+        y_nh3 = eta * ca.fmax(urea_g_min, 0) / SECONDS_PER_MINUTE / _UREA_G_MOL * NH3_PER_UREA / flow
         y_nox = ca.fmax(nox_ppm, 0) * 1e-6
         q = flow * n / omega
 
@@ -151,6 +162,14 @@ class StorageGreyBox(BaseEstimator):
             xs.append(th_new)
             _, y_nh3, y_nox = gas(th_new, y_nh3, y_nox)
         return ca.vertcat(*xs, t), ca.vertcat(y_nox * 1e6, y_nh3 * 1e6)
+
+    def step_expression(self, x: ca.SX, u: ca.SX, p: ca.SX) -> tuple[ca.SX, ca.SX]:
+        """The explicit step over ``dt`` (the one :meth:`to_casadi` exports) as CasADi expressions of the state
+        ``x`` (n_cells + 1), the inputs ``u`` (4) and the parameters ``p`` (N_PARAMS, symbolic or numeric):
+        ``(x_next, y)`` with y = [tailpipe NOx ppm, NH3 ppm]. Needs no fit: for models whose parameters are
+        re-estimated online (:mod:`control.adaptive`)."""
+        self._check_settings()
+        return self._step_expr(x, u, p)
 
     def implicit_stage(self, x_next: ca.SX, x: ca.SX, u: ca.SX, h: float) -> tuple[ca.SX, ca.SX]:
         """The model over a stage of ``h`` seconds (input held) as smooth implicit-Euler equations, for an NLP whose
@@ -317,7 +336,7 @@ class StorageGreyBox(BaseEstimator):
         omega = nom["omega_mol"] * np.exp(p[0])
         e_des = nom["e_des"] * (1 + p[3])
         eg = nom["gamma"] * np.exp(p[4]) * e_des / (R_GAS * t_k)
-        k_ads = nom["a_ads"] * np.exp(p[1]) * 101325.0 / (R_GAS * t_k)
+        k_ads = nom["a_ads"] * np.exp(p[1]) * ATMOSPHERIC_PRESSURE_PA / (R_GAS * t_k)
         k_des = nom["a_des"] * np.exp(p[2]) * ca.exp(-e_des / (R_GAS * t_k))
         q = max(float(flow_mol_s), 1e-3) * n / omega
         return 1e6 * k_des * ca.exp(eg * theta) * theta / (q + k_ads * (1 - theta))

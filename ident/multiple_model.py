@@ -104,7 +104,7 @@ def validity_functions(s: Sequence[Any], edges: Sequence[np.ndarray], kind: str,
     the CasADi export is the numpy model).
     """
     per_dim = []
-    for sd, e in zip(s, edges):
+    for sd, e in zip(s, edges, strict=False):
         e = np.asarray(e, dtype=float)
         w = np.diff(e)
         if kind == "gaussian":

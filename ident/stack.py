@@ -81,7 +81,7 @@ class OutputStack(BaseEstimator):
             y0a = as_2d("y0", y0a, n_columns=sum(counts))
         cols = []
         k = 0
-        for m, n in zip(self.models_, counts):
+        for m, n in zip(self.models_, counts, strict=True):
             yi = None if y0a is None else y0a[:, k:k + n]
             out = np.asarray(m.predict(u) if yi is None else m.predict(u, yi), dtype=float)
             cols.append(out.reshape(out.shape[0], -1))
@@ -99,7 +99,7 @@ class OutputStack(BaseEstimator):
         x = ca.SX.sym("x", sum(nxs))
         u = ca.SX.sym("u", nu)
         xs, ys, k = [], [], 0
-        for f, n in zip(fs, nxs):
+        for f, n in zip(fs, nxs, strict=True):
             xn, yi = f(x[k:k + n], u)
             xs.append(xn)
             ys.append(yi)

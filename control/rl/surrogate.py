@@ -40,7 +40,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from scr_env.constants import NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
+from scr_env.constants import NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL, UREA_G_MIN_PER_ADBLUE_G_S
 from scr_env.cycles import ExhaustTrace
 from scr_env.envs.config import make_config
 from scr_env.envs.core import OBS_BASE, OBS_BASE_HIGH, OBS_BASE_LOW
@@ -55,7 +55,6 @@ __all__ = [
     "sim_to_real_gap",
 ]
 
-UREA_G_MIN_PER_ADBLUE_G_S = 60.0 * 0.325  # g/min urea per g/s AdBlue (AUS 32: 32.5 wt% urea)
 #: input signals a surrogate may use, with their units
 INPUT_SIGNALS = {"inlet_nox_ppm": "ppm", "inlet_temperature_k": "K", "exhaust_flow_mol_s": "mol/s",
                  "inlet_no2_fraction": "-", "adblue_g_s": "g/s", "urea_dosing_g_min": "g/min"}
@@ -428,20 +427,7 @@ def sim_to_real_gap(policy: Any, surrogate_info: dict[str, Any], cycles: Sequenc
     sur = surrogate_info["surrogate_object"]
     out: dict[str, Any] = {}
     for cycle in cycles:
-        env = SurrogateSCREnv(sur, cycle=cycle)
-        rows = []
-        for s in seeds:
-            obs, _ = env.reset(seed=s)
-            if hasattr(policy, "reset"):
-                policy.reset()
-            start = True
-            while True:
-                action, _ = policy.predict(obs, episode_start=np.array([start]), deterministic=True)
-                start = False
-                obs, _, _, trunc, info = env.step(action)
-                if trunc:
-                    rows.append(info["episode_kpis"])
-                    break
+        rows = [r.kpis for r in evaluate(policy, env=SurrogateSCREnv(sur, cycle=cycle), seeds=seeds, name="rl")]
         sim = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
         real = summarise(evaluate(policy, cycles=(cycle,), seeds=seeds, name="rl"))[cycle]["rl"]
         out[cycle] = {"surrogate": sim, "plant": {k: real[k] for k in sim if k in real},

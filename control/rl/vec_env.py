@@ -9,9 +9,11 @@ only spelled differently, so the adapter just translates:
 |-----------------------------------------------|----------------------------------------------------------|
 | ``terminated``, ``truncated`` (bool arrays)    | ``dones = terminated | truncated``                        |
 | ``infos["final_obs"][i]``                     | ``infos[i]["terminal_observation"]``                     |
-| ``truncated[i] and not terminated[i]``        | ``infos[i]["TimeLimit.truncated"] = True`` (SB3 bootstraps the value of the terminal observation) |
+| ``truncated[i] and not terminated[i]``        | ``infos[i]["TimeLimit.truncated"] = True`` (1)           |
 | ``infos["final_info"]["episode_kpis"]``       | ``infos[i]["episode_kpis"]`` (dict of floats)            |
 | per-step info arrays (``nox_cost``, ...)      | ``infos[i][key]`` scalars (only if ``per_step_info``)    |
+
+(1) SB3 then bootstraps the value of the terminal observation.
 
 The end of a drive cycle is a truncation, never a termination: the catalyst goes on, so the value of the last state
 is bootstrapped.

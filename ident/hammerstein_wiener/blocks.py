@@ -404,7 +404,7 @@ class Saturation(StaticNonlinearity):
 
     def _limits(self, p: np.ndarray) -> tuple[float, float]:
         lim = [float(self.lower), float(self.upper)]
-        for i, v in zip(self._finite(), p):
+        for i, v in zip(self._finite(), p, strict=False):
             lim[i] = float(v)
         return lim[0], lim[1]
 

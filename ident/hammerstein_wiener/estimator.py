@@ -175,7 +175,7 @@ class HammersteinWiener(BaseEstimator):
         """theta -> (input params per block, b per input, eta per input, output params), fixed ones filled in."""
         j = 0
         p_in = []
-        for blk, p0 in zip(self._blocks, self._p0_in):
+        for blk, p0 in zip(self._blocks, self._p0_in, strict=False):
             m = blk.n_free()
             p_in.append(theta[j:j + m] if m else p0)
             j += m
@@ -262,7 +262,7 @@ class HammersteinWiener(BaseEstimator):
             lams = sorted({float(lam) for lam in grid}, reverse=True)
             templates = [HammersteinWiener(**{**self.get_params(), "smoothness": lam}) for lam in lams]
             fits = _holdout_scores(templates, u, y, self.holdout, sample_weight)
-            scores = dict(zip(lams, fits))
+            scores = dict(zip(lams, fits, strict=False))
             best = lams[int(np.argmax(fits))]
         else:
             best = float(grid[0])
@@ -372,7 +372,8 @@ class HammersteinWiener(BaseEstimator):
         u_arr, y_arr = validate_fit_data(u_arr, y_arr, n_par, int(max(nk + nb)), "Hammerstein-Wiener model")
         yv = y_arr[:, 0]
         self._p0_in = [b.initial_params(u_arr[:, i]) for i, b in enumerate(self._blocks)]
-        v0 = np.column_stack([b.value(u_arr[:, i], p) for i, (b, p) in enumerate(zip(self._blocks, self._p0_in))])
+        v0 = np.column_stack([b.value(u_arr[:, i], p)
+                              for i, (b, p) in enumerate(zip(self._blocks, self._p0_in, strict=False))])
         lin = self.init_model
         if lin is None:
             # the best linear model; with sample weights, fitted on the longest run of weighted samples only (a
@@ -427,7 +428,7 @@ class HammersteinWiener(BaseEstimator):
                 b_i = b_i[:-1] / abs(gain)
             lin_part += list(b_i) + list(eta)
         theta0: list[float] = []
-        for blk, p0 in zip(self._blocks, self._p0_in):
+        for blk, p0 in zip(self._blocks, self._p0_in, strict=False):
             if blk.n_free():
                 theta0 += list(p0)
         theta0 += lin_part
@@ -486,7 +487,7 @@ class HammersteinWiener(BaseEstimator):
         """The static input blocks' outputs v, shape (N, n_inputs)."""
         u = self._u(u)
         return np.column_stack([b.value(u[:, i], p) for i, (b, p) in
-                                enumerate(zip(self.input_blocks_, self.input_params_))])
+                                enumerate(zip(self.input_blocks_, self.input_params_, strict=False))])
 
     def output_nonlinearity(self, w: Any) -> np.ndarray:
         """h(w) for the linear block's output w."""
@@ -586,7 +587,8 @@ class HammersteinWiener(BaseEstimator):
         check_is_fitted(self, "b_")
         x = ca.SX.sym("x", self.n_states_)
         u = ca.SX.sym("u", self.n_inputs_)
-        v = ca.vertcat(*[b.casadi(u[i], p) for i, (b, p) in enumerate(zip(self.input_blocks_, self.input_params_))])
+        v = ca.vertcat(*[b.casadi(u[i], p)
+                         for i, (b, p) in enumerate(zip(self.input_blocks_, self.input_params_, strict=False))])
         x_next = ca.mtimes(ca.DM(self.A_), x) + ca.mtimes(ca.DM(self.B_), v)
         w = ca.mtimes(ca.DM(self.C_), x) + ca.mtimes(ca.DM(self.D_), v)
         y = self.output_block_.casadi(w, self.output_params_)

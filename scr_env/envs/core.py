@@ -323,12 +323,12 @@ class PlantBatch:
         self.n = n
         offsets = []
         col = 0
-        for name, width in _BLOCKS:
+        for _name, width in _BLOCKS:
             offsets.append(col)
             col += n_cells if width is None else width
         self.buf = np.zeros((n, col))
         self.layout = np.array([n_cells, *offsets, int(bool(nh3_sensor)), int(bool(privileged))], dtype=np.int64)
-        for (name, width), off in zip(_BLOCKS, offsets):
+        for (name, width), off in zip(_BLOCKS, offsets, strict=False):
             w = n_cells if width is None else width
             setattr(self, name, self.buf[:, off] if width == 1 else self.buf[:, off:off + w])
         self.obs = np.zeros((n, obs_dim), dtype=np.float32)

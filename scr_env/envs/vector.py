@@ -1,7 +1,7 @@
 """The native vector environment: N catalysts stepped by one call of the compiled physics."""
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
@@ -48,7 +48,7 @@ class UreaSCRVectorEnv(VectorEnv):
     ``tailpipe_nh3_ppm``, ``adblue_g_s`` and ``step_index``.
     """
 
-    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
 
     def __init__(self, num_envs: int = 1, cycle: Any = "whtc", random_offsets: bool = False,
                  random_cycle_pool: int = 32, render_mode: str | None = None, **kwargs: Any) -> None:

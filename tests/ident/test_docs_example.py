@@ -12,7 +12,7 @@ def _example() -> str:
             text = doc.read_text(encoding="utf-8")
             at = text.find("Fit your own data")
             if at >= 0:
-                m = re.search(r"```python\n(.*?)```", text[at:], re.S)
+                m = re.search(r"```python\n(.*?)```", text[at:], re.DOTALL)
                 if m:
                     return m.group(1)
     raise AssertionError("no 'Fit your own data' python example in docs/pending/ident.md or README.md")

@@ -84,7 +84,7 @@ def test_ekf_reads_the_nh3_sensor_when_told():
     mpc = _nh3_sensor_mpc()
     res = evaluate(mpc, cycles=("whsc",), max_steps=20, env_kwargs={"nh3_sensor": True})[0]
     assert res.stats["solves"] == 20 and res.stats["solver_failures"] == 0
-    assert mpc.model.ekf_.R_.shape == (2, 2)
+    assert mpc.estimator.ekf_.R_.shape == (2, 2)
 
 
 def test_nh3_sensor_model_on_an_env_without_the_sensor_is_refused():
@@ -145,7 +145,7 @@ def test_fit_rejects_bad_data_at_entry_and_keeps_a_fitted_model():
     for args, match in _bad_fit_data():
         with pytest.raises(ValueError, match=match):
             m.fit(*args)
-        assert all(np.array_equal(a, b) for a, b in zip(state, _fitted_state(m)))
+        assert all(np.array_equal(a, b) for a, b in zip(state, _fitted_state(m), strict=False))
 
 
 def test_a_fit_failing_midway_leaves_the_model_as_it_was(monkeypatch):
@@ -163,7 +163,7 @@ def test_a_fit_failing_midway_leaves_the_model_as_it_was(monkeypatch):
     monkeypatch.setattr(ci.np.linalg, "lstsq", boom)
     with pytest.raises(np.linalg.LinAlgError):
         m.fit(u, y)
-    assert all(np.array_equal(a, b) for a, b in zip(state, _fitted_state(m)))
+    assert all(np.array_equal(a, b) for a, b in zip(state, _fitted_state(m), strict=False))
     monkeypatch.undo()
     fresh = StorageGreyBox(max_nfev=2)
     monkeypatch.setattr(ci, "least_squares", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("optimiser")))

@@ -217,7 +217,7 @@ def test_smoothness_grid_holdout_and_init_from_template() -> None:
     # a heavy roughness penalty keeps the blocks straight lines
     stiff = HammersteinWiener([PiecewiseLinear(8), PiecewiseLinear(8)], Saturation(-0.5), nb=1, nf=1,
                               init_model=wien, smoothness=1e4, max_nfev=40).fit(u, y)
-    for blk, p in zip(stiff.input_blocks_, stiff.input_params_):
+    for blk, p in zip(stiff.input_blocks_, stiff.input_params_, strict=False):
         assert np.linalg.norm(blk.roughness_matrix() @ p) < 1e-2
     with pytest.raises(ValueError, match="smoothness"):
         HammersteinWiener(smoothness=-1.0).fit(u, y)

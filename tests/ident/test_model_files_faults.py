@@ -103,7 +103,7 @@ DAMAGES = {
 
 @pytest.mark.parametrize("damage", sorted(DAMAGES))
 def test_damaged_rpem_file_is_refused_before_any_kernel_runs(tmp_path, fitted, damage):
-    est, u, _ = fitted
+    est = fitted[0]
     path = est.save(tmp_path / "m")
     change, match = DAMAGES[damage]
     arrays = {k: f(_arr(path, k)) for k, f in change.items() if k != "meta"}
@@ -125,7 +125,7 @@ def test_rpem_file_round_trip_is_exact_and_continues_online(tmp_path, fitted):
 def test_random_damage_never_crashes_the_interpreter(tmp_path, fitted):
     """200 random consistent forgeries of an RPEM file (array shapes, values, metadata) are loaded and used in a
     subprocess: each ends in a ModelFileError or a model that predicts finite values; the process never dies."""
-    est, u, y = fitted
+    est = fitted[0]
     path = est.save(tmp_path / "m")
     code = textwrap.dedent(f"""
         import hashlib, json, shutil, sys

@@ -253,14 +253,14 @@ def test_vector_env_threaded_and_serial_steps_agree_bitwise() -> None:
             obs, r, _, _, info = venv.step(rng.uniform(-1, 1, size=(80, 1)).astype(np.float32))
             trajectory += [obs, r, info["tailpipe_nh3_ppm"], venv.state["nh3_coverage"]]
         runs.append(trajectory)
-    for a, b in zip(*runs):
+    for a, b in zip(*runs, strict=True):
         np.testing.assert_array_equal(a, b)
 
 
 def test_vector_env_same_step_autoreset_reports_final_kpis() -> None:
     venv = UreaSCRVectorEnv(num_envs=4, cycle="random", random_cycle_duration_s=10.0, random_cycle_pool=3)
     venv.reset(seed=0)
-    for k in range(20):
+    for _ in range(20):
         obs, _, _, tr, info = venv.step(np.full((4, 1), -0.5, dtype=np.float32))
     assert tr.all()
     assert info["_final_obs"].all() and info["final_obs"][0].shape == (5,)
@@ -301,7 +301,7 @@ def test_readme_usage_example_runs() -> None:
     example = blocks[0]
     assert len(example.strip().splitlines()) <= 12
     namespace: dict = {}
-    exec(compile(example, "README.md", "exec"), namespace)
+    exec(compile(example, "README.md", "exec"), namespace)  # noqa: S102  (the README's own example, run as is)
 
 
 # ------------------------------------------------------------------------------------------------ input validation
