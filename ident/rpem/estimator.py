@@ -15,7 +15,7 @@ from ident.metrics import fit_percent
 from ident.rpem import kernel
 from ident.rpem.kalman_init import DEFAULT_KALMAN_OPTIONS, ekf_initial_theta, ekf_state_estimates, kalman_options
 from ident.rpem.regressors import polynomial_terms
-from ident.rpem.start import equation_error_theta, time_scale, unfold_candidates, unfold_sign
+from ident.rpem.start import equation_error_thetas, time_scale, unfold_candidates, unfold_sign
 from ident.rpem.structure import INPUT_TRANSFORMS, ChainStructure, apply_input_transforms, method_code
 
 #: Static output functions ``y = h(x1, eta)``: name -> kernel code.
@@ -529,6 +529,7 @@ class RecursivePEM(BaseEstimator):
         n_hold = round(frac * N) if N >= 100 else 0
         tuned = self.keep == "best" and (n_passes > 1 or autos)
         split = N - n_hold if (tuned and n_hold > 0) else N
+        self._start_cache: dict[str, list] = {}
         modes = ["hold", "interpolate"] if self.half_step_input == "auto" else [self.half_step_input_]
         pass_modes = ["restart", "continue"] if self.pass_mode == "auto" else [self.pass_mode]
         best: dict[str, Any] | None = None
@@ -547,6 +548,7 @@ class RecursivePEM(BaseEstimator):
         for k, v in best["state"].items():
             setattr(self, k, v)
         self.pass_fits_ = best["pass_fits"]
+        del self._start_cache
         self.theta_init_ = best["start"][0]
         self.holdout_fit_ = best["score"] if split < N else None
         self._warn_if_diverged(um, ym)
@@ -609,10 +611,7 @@ class RecursivePEM(BaseEstimator):
         for unfold, eta in variants:
             z = self._chain_output(ym, unfold) if self.output == "abs" else ym
             for lam in (0.5, 1.0, 2.0):
-                for linear_only in (False, True):
-                    th = equation_error_theta(self.structure_, um, z, lam / unit, ts, hold, linear_only)
-                    if th is not None:
-                        cands.append((th, eta))
+                cands.extend((th, eta) for th in equation_error_thetas(self.structure_, um, z, lam / unit, ts, hold))
         if self.output != "identity":
             # output-error starts: the same chain with the identity output fitted, by this estimator's own passes,
             # to the chain output the data show; for "abs" to each of several sign-unfolded versions of the output
@@ -626,7 +625,8 @@ class RecursivePEM(BaseEstimator):
                 targets = [ym]
             pre = self.clone(output="identity", init="auto", half_step_input=self.half_step_input_,
                              alpha=float(self.alpha_), n_substeps=int(self.n_substeps_), normalize=False,
-                             output_limits=None, keep="best", n_restarts=0, theta0=None)
+                             output_limits=None, keep="best", n_restarts=0, theta0=None, pass_mode="continue",
+                             n_passes=min(10, int(self.n_passes)))
             for z in targets:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)
@@ -641,7 +641,10 @@ class RecursivePEM(BaseEstimator):
     def _fit_mode(self, um: np.ndarray, ym: np.ndarray, split: int, n_passes: int, tuned: bool) -> dict[str, Any]:
         """Starts and passes for the current half-step mode; the best (start, pass) on the hold-out."""
         u_fit, y_fit = um[:split], ym[:split]
-        starts = self._starts(u_fit, y_fit)
+        cache = self.__dict__.setdefault("_start_cache", {})
+        if self.half_step_input_ not in cache:  # the starts do not depend on the pass mode
+            cache[self.half_step_input_] = self._starts(u_fit, y_fit)
+        starts = [(th.copy(), eta.copy()) for th, eta in cache[self.half_step_input_]]
         self.theta_init_ = starts[0][0].copy()
         rng = np.random.default_rng(int(self.random_state))
         for _ in range(int(self.n_restarts)):
