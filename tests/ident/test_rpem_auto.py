@@ -126,7 +126,7 @@ def test_static_output_functions_are_estimated_with_the_recursion(output, true_o
                        **settings).fit(u, y)
     ident_only = RecursivePEM(n_states=2, terms=PAPER2_TERMS, sampling_period=0.1, **settings).fit(u, y)
     fit = fit_percent(true_output(wv), est.predict(uv, true_output(wv)))
-    assert fit > 97.0 and fit > fit_percent(true_output(wv), ident_only.predict(uv, true_output(wv)))
+    assert fit > 95.0 and fit > fit_percent(true_output(wv), ident_only.predict(uv, true_output(wv)))
     assert est.output_params_.shape == (1, 2)
     if output == "saturation":
         np.testing.assert_allclose(est.output_params_[0], [-0.3, 0.9], atol=0.02)
