@@ -495,7 +495,7 @@ class RecursivePEM(BaseEstimator):
         After ``fit``: ``theta_``, ``output_params_``, ``terms_``; ``pass_fits_`` (simulation FIT of each pass of
         the kept run, percent, on the hold-out or the estimation data), ``n_rejected_`` / ``n_updates_`` (updates
         refused by the projection onto DM in the kept pass, and all updates) and ``n_bound_hits_`` (samples at
-        which the recursion's state hit ``state_bound``); the resolved automatic choices ``alpha_``,
+        which the recursion's simulated state hit ``state_bound``); the resolved automatic choices ``alpha_``,
         ``half_step_input_``, ``n_substeps_``; and the recursion's state after the kept pass (``P_``,
         ``Lambda_``, ``x_``, ``sensitivity_``). A ``RuntimeWarning`` says when most updates were rejected or the
         fitted model's simulation of the estimation data sits on its state bound (a diverged model).
@@ -508,16 +508,17 @@ class RecursivePEM(BaseEstimator):
             self.__dict__.pop(attr, None)
         self._setup(u2.shape[1], y2.shape[1])
         ut = apply_input_transforms(u2, self.input_transforms or {})
-        with np.errstate(over="ignore", invalid="ignore"):
-            bad = np.flatnonzero(~np.isfinite(ut.var(axis=0)))
+        peak = np.max(np.abs(ut), axis=0)
+        bad = np.flatnonzero(peak > 1e150)  # squares (variance, regressors) of such values overflow
         if bad.size:
             raise ValueError(f"u has a non-finite variance in column(s) {bad.tolist()} (values up to "
-                             f"{np.abs(ut[:, bad]).max():.3g} overflow, after input_transforms): rescale it before "
+                             f"{peak[bad].max():.3g} overflow, after input_transforms): rescale it before "
                              "identifying the RPEM model")
         if self.normalize:
             sd_u = ut.std(axis=0)
             self._set_scaling(ut.mean(axis=0), np.where(sd_u > 0, sd_u, 1.0), y2.mean(axis=0), y2.std(axis=0))
-        um, ym = self._u_model(u2), self._y_model(y2)
+            ut = (ut - self.input_mean_) / self.input_scale_
+        um, ym = ut, self._y_model(y2)
         if not (np.all(np.isfinite(um)) and np.all(np.isfinite(ym))):
             raise ValueError("u or y overflows after scaling: rescale the signals")
         self._resolve_time_scale(um, ym)
@@ -548,6 +549,7 @@ class RecursivePEM(BaseEstimator):
         for k, v in best["state"].items():
             setattr(self, k, v)
         self.pass_fits_ = best["pass_fits"]
+        self._kept_sim_hits = float(best.get("sim_hits", 0.0))
         del self._start_cache
         self.theta_init_ = best["start"][0]
         self.holdout_fit_ = best["score"] if split < N else None
@@ -674,7 +676,7 @@ class RecursivePEM(BaseEstimator):
             # with the automatic choices the start itself is a candidate: passes that diverge from a good start
             # must not replace it
             self._reset_recursion(theta, eta)
-            best.update(score=self._score(um, ym, split, theta, eta), state=self._snapshot())
+            self._keep(best, self._score(um, ym, split, theta, eta), self._snapshot())
         # the thesis' passes stop at the first pass that does not improve; with the automatic choices, after three;
         # "continue" converges slowly and may sit below its start for many passes, so it runs every pass
         patience = (1 if not self._autos else 3) if self.pass_mode_ == "restart" else n_passes
@@ -688,16 +690,16 @@ class RecursivePEM(BaseEstimator):
             theta, eta = self.theta_.copy(), self.output_params_.copy()
             state = self._snapshot()
             if not tuned and self.keep == "last":
-                best.update(score=self._score(um, ym, split, theta, eta), state=state)
+                self._keep(best, self._score(um, ym, split, theta, eta), state)
                 fits.append(best["score"])
                 continue
             if n_passes == 1 and not tuned:
-                best.update(score=-np.inf, state=state)
+                best.update(score=-np.inf, state=state, sim_hits=0.0)
                 break
             fit = self._score(um, ym, split, theta, eta)
             fits.append(fit)
             if fit > best["score"] + float(self.pass_tol) or best["state"] is None:
-                best.update(score=fit, state=state)
+                self._keep(best, fit, state)
                 stale = 0
             else:
                 stale += 1
@@ -716,10 +718,15 @@ class RecursivePEM(BaseEstimator):
                 "n_bound_hits_": self.n_bound_hits_, "n_updates_": self.n_samples_seen_,
                 "gain_": self.gain_, "forgetting_": self.forgetting_}
 
+    def _keep(self, best: dict[str, Any], score: float, state: dict[str, Any]) -> None:
+        best.update(score=score, state=state, sim_hits=getattr(self, "_last_sim_hits", 0.0))
+
     def _score(self, um: np.ndarray, ym: np.ndarray, split: int, theta: np.ndarray, eta: np.ndarray) -> float:
         """Simulation FIT (mean over outputs) on the hold-out ``[split:]``, or on all data if there is none; the
-        simulation runs over the whole record from ``(y(0), 0, ...)``."""
+        simulation runs over the whole record from ``(y(0), 0, ...)`` (its fraction of samples on the state bound
+        is kept in ``_last_sim_hits``)."""
         yhat, hits = self._simulate(um, self._x_start(ym[0], eta), theta, eta)
+        self._last_sim_hits = hits / max(len(ym), 1)
         if not np.all(np.isfinite(yhat)) or hits > WARN_BOUND_FRACTION * len(ym):
             return -np.inf
         sl = slice(split, None) if split < len(ym) else slice(None)
@@ -731,13 +738,14 @@ class RecursivePEM(BaseEstimator):
             warnings.warn(f"RecursivePEM: {self.n_rejected_} of {n_updates} parameter updates were rejected by the "
                           "projection onto the model set (the estimate barely left its start); try normalize=True, "
                           "alpha='auto' and init='auto', or a smaller stability_margin", RuntimeWarning, stacklevel=3)
-        _, hits = self._simulate(um, self._x_start(ym[0], self.output_params_), self.theta_, self.output_params_)
-        self.simulation_bound_hits_ = int(hits)
+        # the recursion's own simulation (the model state it propagates) on the state bound: counted by the kernel,
+        # so this check costs nothing; a fit that scored its passes also checked the kept model's free run
+        n_seen = max(int(self.n_samples_seen_), 1)
+        hits = max(int(self.n_bound_hits_) / n_seen, self._kept_sim_hits) * len(ym)
         if hits > WARN_BOUND_FRACTION * len(ym):
-            warnings.warn(f"RecursivePEM: the fitted model's simulation of the estimation data sits on its state "
-                          f"bound ({self.state_bound:g}) at {hits} of {len(ym)} samples: the model diverged; try "
-                          "normalize=True, alpha='auto', init='auto', keep='best' with n_passes > 1",
-                          RuntimeWarning, stacklevel=3)
+            warnings.warn(f"RecursivePEM: the model's simulation sits on its state bound ({self.state_bound:g}) at "
+                          f"{100.0 * hits / len(ym):.1f} % of the samples: the model diverged; try normalize=True, "
+                          "alpha='auto', init='auto', keep='best' with n_passes > 1", RuntimeWarning, stacklevel=3)
 
     def _fresh_validate(self, u: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
         # fit() starts over, so the sizes of an earlier fit must not constrain the new data.

@@ -137,7 +137,8 @@ def test_output_function_and_scaling_in_casadi_export_and_files(tmp_path):
     sub-steps)."""
     b = simulated_benchmark("coupled_drives", n_estimation=600, n_validation=200)
     est = RecursivePEM(n_states=3, output="abs", sampling_period=b.sampling_period,
-                       **{**AUTO_SETTINGS, "n_passes": 2, "n_substeps": 2}).fit(b.estimation.u, b.estimation.y)
+                       **{**AUTO_SETTINGS, "n_passes": 2, "n_substeps": 2, "half_step_input": "hold"}
+                       ).fit(b.estimation.u, b.estimation.y)  # the export holds the input (ident.rpem.export)
     u = b.validation.u
     x0 = est.initial_state(u, b.validation.y)
     y_pred = est.predict(u, x0=x0)
@@ -205,7 +206,7 @@ def test_diagnostics_and_divergence_warnings():
     with pytest.warns(RuntimeWarning, match="sits on its state bound"):
         est = RecursivePEM(n_states=2, terms=PAPER2_TERMS, sampling_period=0.1, alpha=1.5, state_bound=0.2,
                            theta0=[0.0, 2.0, -1.0, 0.0, -1.0, -1.0, 0.0, 0.0]).fit(*_zoh_data(800, seed=1))
-    assert est.n_bound_hits_ > 0 and est.simulation_bound_hits_ > 8
+    assert est.n_bound_hits_ > 8
     ok = _rpem("duffing_oscillator", n_passes=2, half_step_input="interpolate", pass_mode="restart")
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
