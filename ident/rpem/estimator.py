@@ -496,7 +496,9 @@ class RecursivePEM(BaseEstimator):
         the kept run, percent, on the hold-out or the estimation data), ``n_rejected_`` / ``n_updates_`` (updates
         refused by the projection onto DM in the kept pass, and all updates) and ``n_bound_hits_`` (samples at
         which the recursion's simulated state hit ``state_bound``); the resolved automatic choices ``alpha_``,
-        ``half_step_input_``, ``n_substeps_``; and the recursion's state after the kept pass (``P_``,
+        ``half_step_input_``, ``n_substeps_``, ``pass_mode_`` with ``choice_scores_`` (the hold-out FIT of each
+        half-step/pass-mode pair tried), ``holdout_fit_`` (None without a hold-out) and ``time_scale_rad_s_`` (the
+        ARX characteristic frequency, when it was needed); and the recursion's state after the kept pass (``P_``,
         ``Lambda_``, ``x_``, ``sensitivity_``). A ``RuntimeWarning`` says when most updates were rejected or the
         fitted model's simulation of the estimation data sits on its state bound (a diverged model).
         """
