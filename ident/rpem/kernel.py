@@ -17,7 +17,8 @@ The step of the discretised model, with ``Ts = alpha T`` the scaled sampling per
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from scr_env.jit import njit  # numba.njit with the project's cache directory (never site-packages)
 
 EULER = 0
 MIDPOINT = 1
