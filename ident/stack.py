@@ -99,7 +99,7 @@ class OutputStack(BaseEstimator):
         x = ca.SX.sym("x", sum(nxs))
         u = ca.SX.sym("u", nu)
         xs, ys, k = [], [], 0
-        for f, n in zip(fs, nxs, strict=False):
+        for f, n in zip(fs, nxs, strict=True):
             xn, yi = f(x[k:k + n], u)
             xs.append(xn)
             ys.append(yi)

@@ -15,7 +15,7 @@ from ident.metrics import fit_percent
 from ident.rpem import kernel
 from ident.rpem.kalman_init import DEFAULT_KALMAN_OPTIONS, ekf_initial_theta, ekf_state_estimates, kalman_options
 from ident.rpem.regressors import polynomial_terms
-from ident.rpem.start import equation_error_theta, time_scale, unfold_sign
+from ident.rpem.start import equation_error_thetas, time_scale, unfold_candidates, unfold_sign
 from ident.rpem.structure import INPUT_TRANSFORMS, ChainStructure, apply_input_transforms, method_code
 
 #: Static output functions ``y = h(x1, eta)``: name -> kernel code.
@@ -138,8 +138,9 @@ class RecursivePEM(BaseEstimator):
         ``p0``, ``q_state``, ``q_theta``, ``r``, ``n_passes`` for the EKF (defaults: Paper III's 10, 50, 0, 3, 1).
     n_passes : int
         Largest number of passes of ``fit`` over the data (a positive integer); passes stop once the fit (see
-        ``keep``) stops improving by more than ``pass_tol`` percent (for three passes in a row with ``pass_mode=
-        "continue"``). Each pass restarts the state and (see ``pass_mode``) R, Lambda and the gain.
+        ``keep``) stops improving by more than ``pass_tol`` percent (for three passes in a row with the automatic
+        choices; ``pass_mode="continue"`` runs them all). Each pass restarts the state and (see ``pass_mode``) R,
+        Lambda and the gain.
     pass_tol : float
         Required improvement of the FIT (percent, >= 0) to continue passing.
     output : {"identity", "polynomial", "abs", "saturation"}
@@ -428,6 +429,8 @@ class RecursivePEM(BaseEstimator):
         self.n_samples_seen_ = 0
         self.n_rejected_ = 0
         self.n_bound_hits_ = 0
+        self.gain_ = 1.0
+        self.forgetting_ = float(self.forgetting_initial)
 
     # ------------------------------------------------------------------ data handling
     def _validate(self, u: Any, y: Any | None = None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -492,8 +495,10 @@ class RecursivePEM(BaseEstimator):
         After ``fit``: ``theta_``, ``output_params_``, ``terms_``; ``pass_fits_`` (simulation FIT of each pass of
         the kept run, percent, on the hold-out or the estimation data), ``n_rejected_`` / ``n_updates_`` (updates
         refused by the projection onto DM in the kept pass, and all updates) and ``n_bound_hits_`` (samples at
-        which the recursion's state hit ``state_bound``); the resolved automatic choices ``alpha_``,
-        ``half_step_input_``, ``n_substeps_``; and the recursion's state after the kept pass (``P_``,
+        which the recursion's simulated state hit ``state_bound``); the resolved automatic choices ``alpha_``,
+        ``half_step_input_``, ``n_substeps_``, ``pass_mode_`` with ``choice_scores_`` (the hold-out FIT of each
+        half-step/pass-mode pair tried), ``holdout_fit_`` (None without a hold-out) and ``time_scale_rad_s_`` (the
+        ARX characteristic frequency, when it was needed); and the recursion's state after the kept pass (``P_``,
         ``Lambda_``, ``x_``, ``sensitivity_``). A ``RuntimeWarning`` says when most updates were rejected or the
         fitted model's simulation of the estimation data sits on its state bound (a diverged model).
         """
@@ -505,26 +510,29 @@ class RecursivePEM(BaseEstimator):
             self.__dict__.pop(attr, None)
         self._setup(u2.shape[1], y2.shape[1])
         ut = apply_input_transforms(u2, self.input_transforms or {})
-        with np.errstate(over="ignore", invalid="ignore"):
-            bad = np.flatnonzero(~np.isfinite(ut.var(axis=0)))
+        peak = np.max(np.abs(ut), axis=0)
+        bad = np.flatnonzero(peak > 1e150)  # squares (variance, regressors) of such values overflow
         if bad.size:
             raise ValueError(f"u has a non-finite variance in column(s) {bad.tolist()} (values up to "
-                             f"{np.abs(ut[:, bad]).max():.3g} overflow, after input_transforms): rescale it before "
+                             f"{peak[bad].max():.3g} overflow, after input_transforms): rescale it before "
                              "identifying the RPEM model")
         if self.normalize:
             sd_u = ut.std(axis=0)
             self._set_scaling(ut.mean(axis=0), np.where(sd_u > 0, sd_u, 1.0), y2.mean(axis=0), y2.std(axis=0))
-        um, ym = self._u_model(u2), self._y_model(y2)
+            ut = (ut - self.input_mean_) / self.input_scale_
+        um, ym = ut, self._y_model(y2)
         if not (np.all(np.isfinite(um)) and np.all(np.isfinite(ym))):
             raise ValueError("u or y overflows after scaling: rescale the signals")
         self._resolve_time_scale(um, ym)
         N = len(ym)
         autos = (self.init == "auto" or self.half_step_input == "auto" or self.pass_mode == "auto"
                  or int(self.n_restarts) > 0)
+        self._autos = autos
         frac = (0.2 if autos else 0.0) if self.holdout is None else float(self.holdout)
         n_hold = round(frac * N) if N >= 100 else 0
         tuned = self.keep == "best" and (n_passes > 1 or autos)
         split = N - n_hold if (tuned and n_hold > 0) else N
+        self._start_cache: dict[str, list] = {}
         modes = ["hold", "interpolate"] if self.half_step_input == "auto" else [self.half_step_input_]
         pass_modes = ["restart", "continue"] if self.pass_mode == "auto" else [self.pass_mode]
         best: dict[str, Any] | None = None
@@ -543,6 +551,8 @@ class RecursivePEM(BaseEstimator):
         for k, v in best["state"].items():
             setattr(self, k, v)
         self.pass_fits_ = best["pass_fits"]
+        self._kept_sim_hits = float(best.get("sim_hits", 0.0))
+        del self._start_cache
         self.theta_init_ = best["start"][0]
         self.holdout_fit_ = best["score"] if split < N else None
         self._warn_if_diverged(um, ym)
@@ -605,22 +615,27 @@ class RecursivePEM(BaseEstimator):
         for unfold, eta in variants:
             z = self._chain_output(ym, unfold) if self.output == "abs" else ym
             for lam in (0.5, 1.0, 2.0):
-                for linear_only in (False, True):
-                    th = equation_error_theta(self.structure_, um, z, lam / unit, ts, hold, linear_only)
-                    if th is not None:
-                        cands.append((th, eta))
+                cands.extend((th, eta) for th in equation_error_thetas(self.structure_, um, z, lam / unit, ts, hold))
         if self.output != "identity":
-            # an output-error start: the same chain with the identity output fitted to the chain output the data
-            # show (the sign-unfolded output for "abs"), by this estimator's own passes
-            z = self._chain_output(ym)
+            # output-error starts: the same chain with the identity output fitted, by this estimator's own passes,
+            # to the chain output the data show; for "abs" to each of several sign-unfolded versions of the output
+            eta_pre = variants[0][1]
+            if self.output == "abs":
+                per_output = [unfold_candidates(ym[:, k], eta_pre[k, 0], um, int(self.n_states))
+                              for k in range(self.n_outputs_)]
+                targets = [np.column_stack([c[min(i, len(c) - 1)] for c in per_output])
+                           for i in range(max(len(c) for c in per_output))]
+            else:
+                targets = [ym]
             pre = self.clone(output="identity", init="auto", half_step_input=self.half_step_input_,
                              alpha=float(self.alpha_), n_substeps=int(self.n_substeps_), normalize=False,
-                             output_limits=None, keep="best", n_restarts=0, theta0=None)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                pre.fit(um, z)
-            eta_pre = variants[0][1]
-            cands.append((pre.theta_.copy(), eta_pre))
+                             output_limits=None, keep="best", n_restarts=0, theta0=None, pass_mode="continue",
+                             n_passes=min(10, int(self.n_passes)))
+            for z in targets:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    pre.fit(um, z)
+                cands.append((pre.theta_.copy(), eta_pre))
         if not cands:
             cands.append((theta0, eta0))
         scored = [(self._sim_fit(um, ym, th, eta), i) for i, (th, eta) in enumerate(cands)]
@@ -630,7 +645,10 @@ class RecursivePEM(BaseEstimator):
     def _fit_mode(self, um: np.ndarray, ym: np.ndarray, split: int, n_passes: int, tuned: bool) -> dict[str, Any]:
         """Starts and passes for the current half-step mode; the best (start, pass) on the hold-out."""
         u_fit, y_fit = um[:split], ym[:split]
-        starts = self._starts(u_fit, y_fit)
+        cache = self.__dict__.setdefault("_start_cache", {})
+        if self.half_step_input_ not in cache:  # the starts do not depend on the pass mode
+            cache[self.half_step_input_] = self._starts(u_fit, y_fit)
+        starts = [(th.copy(), eta.copy()) for th, eta in cache[self.half_step_input_]]
         self.theta_init_ = starts[0][0].copy()
         rng = np.random.default_rng(int(self.random_state))
         for _ in range(int(self.n_restarts)):
@@ -656,6 +674,14 @@ class RecursivePEM(BaseEstimator):
                                 "start": (theta.copy(), eta.copy()), "pass_fits": [], "state": None}
         fits: list[float] = []
         stale = 0
+        if tuned and self._autos:
+            # with the automatic choices the start itself is a candidate: passes that diverge from a good start
+            # must not replace it
+            self._reset_recursion(theta, eta)
+            self._keep(best, self._score(um, ym, split, theta, eta), self._snapshot())
+        # the thesis' passes stop at the first pass that does not improve; with the automatic choices, after three;
+        # "continue" converges slowly and may sit below its start for many passes, so it runs every pass
+        patience = (1 if not self._autos else 3) if self.pass_mode_ == "restart" else n_passes
         for k in range(n_passes):
             if k == 0 or self.pass_mode_ == "restart":
                 self._reset_recursion(theta, eta)
@@ -666,22 +692,20 @@ class RecursivePEM(BaseEstimator):
             theta, eta = self.theta_.copy(), self.output_params_.copy()
             state = self._snapshot()
             if not tuned and self.keep == "last":
-                best.update(score=self._score(um, ym, split, theta, eta), state=state)
+                self._keep(best, self._score(um, ym, split, theta, eta), state)
                 fits.append(best["score"])
                 continue
             if n_passes == 1 and not tuned:
-                best.update(score=-np.inf, state=state)
+                best.update(score=-np.inf, state=state, sim_hits=0.0)
                 break
             fit = self._score(um, ym, split, theta, eta)
             fits.append(fit)
             if fit > best["score"] + float(self.pass_tol) or best["state"] is None:
-                best.update(score=fit, state=state)
+                self._keep(best, fit, state)
                 stale = 0
             else:
-                # "restart" stops at the first pass that does not improve (the thesis' rule); "continue" converges
-                # slowly and may dip for a pass, so it stops after three passes without improvement
                 stale += 1
-                if self.pass_mode_ == "restart" or stale >= 3:
+                if stale >= patience:
                     break
         best["pass_fits"] = fits
         if best["state"] is None:
@@ -696,10 +720,15 @@ class RecursivePEM(BaseEstimator):
                 "n_bound_hits_": self.n_bound_hits_, "n_updates_": self.n_samples_seen_,
                 "gain_": self.gain_, "forgetting_": self.forgetting_}
 
+    def _keep(self, best: dict[str, Any], score: float, state: dict[str, Any]) -> None:
+        best.update(score=score, state=state, sim_hits=getattr(self, "_last_sim_hits", 0.0))
+
     def _score(self, um: np.ndarray, ym: np.ndarray, split: int, theta: np.ndarray, eta: np.ndarray) -> float:
         """Simulation FIT (mean over outputs) on the hold-out ``[split:]``, or on all data if there is none; the
-        simulation runs over the whole record from ``(y(0), 0, ...)``."""
+        simulation runs over the whole record from ``(y(0), 0, ...)`` (its fraction of samples on the state bound
+        is kept in ``_last_sim_hits``)."""
         yhat, hits = self._simulate(um, self._x_start(ym[0], eta), theta, eta)
+        self._last_sim_hits = hits / max(len(ym), 1)
         if not np.all(np.isfinite(yhat)) or hits > WARN_BOUND_FRACTION * len(ym):
             return -np.inf
         sl = slice(split, None) if split < len(ym) else slice(None)
@@ -711,13 +740,14 @@ class RecursivePEM(BaseEstimator):
             warnings.warn(f"RecursivePEM: {self.n_rejected_} of {n_updates} parameter updates were rejected by the "
                           "projection onto the model set (the estimate barely left its start); try normalize=True, "
                           "alpha='auto' and init='auto', or a smaller stability_margin", RuntimeWarning, stacklevel=3)
-        _, hits = self._simulate(um, self._x_start(ym[0], self.output_params_), self.theta_, self.output_params_)
-        self.simulation_bound_hits_ = int(hits)
+        # the recursion's own simulation (the model state it propagates) on the state bound: counted by the kernel,
+        # so this check costs nothing; a fit that scored its passes also checked the kept model's free run
+        n_seen = max(int(self.n_samples_seen_), 1)
+        hits = max(int(self.n_bound_hits_) / n_seen, self._kept_sim_hits) * len(ym)
         if hits > WARN_BOUND_FRACTION * len(ym):
-            warnings.warn(f"RecursivePEM: the fitted model's simulation of the estimation data sits on its state "
-                          f"bound ({self.state_bound:g}) at {hits} of {len(ym)} samples: the model diverged; try "
-                          "normalize=True, alpha='auto', init='auto', keep='best' with n_passes > 1",
-                          RuntimeWarning, stacklevel=3)
+            warnings.warn(f"RecursivePEM: the model's simulation sits on its state bound ({self.state_bound:g}) at "
+                          f"{100.0 * hits / len(ym):.1f} % of the samples: the model diverged; try normalize=True, "
+                          "alpha='auto', init='auto', keep='best' with n_passes > 1", RuntimeWarning, stacklevel=3)
 
     def _fresh_validate(self, u: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
         # fit() starts over, so the sizes of an earlier fit must not constrain the new data.

@@ -92,7 +92,7 @@ def _regressors(xv, w, fvar, fpow, nf, n_states, phi, dphi):
 def _rhs(xv, w, theta, fvar, fpow, nf, owner, n_chain, F, J, G, phi, dphi):
     """F = dx/dt, J = dF/dx (N x N) and G = dF/dtheta (N x p) of the chain model."""
     N = xv.shape[0]
-    p = theta.shape[0]
+    p = fvar.shape[0]  # the terms; theta may carry output parameters after them
     _regressors(xv, w, fvar, fpow, nf, N, phi, dphi)
     for i in range(N):
         for c in range(N):
@@ -112,12 +112,12 @@ def _rhs(xv, w, theta, fvar, fpow, nf, owner, n_chain, F, J, G, phi, dphi):
             J[last, c] += theta[j] * dphi[j, c]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _single_step(xv, ws, wh, theta, cfg, Ts, fvar, fpow, nf, owner, n_chain, x_next, A, B, need_b, work):
     """One Euler / midpoint step of length ``Ts`` (see :func:`model_step`)."""
     F0, J0, G0, F1, J1, G1, phi, dphi, xbar, M = work[:10]
     N = xv.shape[0]
-    p = theta.shape[0]
+    p = fvar.shape[0]  # the terms; theta may carry output parameters after them
     _rhs(xv, ws, theta, fvar, fpow, nf, owner, n_chain, F0, J0, G0, phi, dphi)
     if cfg[CF_METHOD] == EULER:
         for i in range(N):
@@ -171,7 +171,7 @@ def model_step(xv, ws, wh, theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A
         _single_step(xv, ws, wh, theta, cfg, cfg[CF_TS], fvar, fpow, nf, owner, n_chain, x_next, A, B, need_b, work)
         return
     N = xv.shape[0]
-    p = theta.shape[0]
+    p = fvar.shape[0]  # the terms; theta may carry output parameters after them
     nw = ws.shape[0]
     half = nw // 2
     h = cfg[CF_TS] / m
@@ -476,9 +476,7 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
     A_c = np.empty((N, N))
     B_dummy = np.empty((1, 1))
     dh_eta = np.zeros(max(q, 1))
-    theta_f = theta[:pf]
     eta = theta[pf:]
-    theta_cf = theta_c[:pf]
     eta_c = theta_c[pf:]
     xmax = cfg[CF_XMAX]
     smax = cfg[CF_SMAX]
@@ -488,7 +486,7 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
             _start_state(xv, S, Y, t, eta, cfg, n_chain)
             st[ST_STARTED] = 1.0
         else:
-            model_step(xv, WS[t], WH[t], theta_f, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, True, work)
+            model_step(xv, WS[t], WH[t], theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, True, work)
             for i in range(N):
                 for j in range(pf):
                     acc = B[i, j]
@@ -509,15 +507,19 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
                 st[ST_BOUND_HITS] += 1.0
         for k in range(d):
             x1 = xv[k * n_chain]
-            yk, dh = output_value(x1, eta, k, cfg, dh_eta)
+            if typ == OUT_IDENTITY:
+                yk, dh = x1, 1.0
+            else:
+                yk, dh = output_value(x1, eta, k, cfg, dh_eta)
             active = yk <= y_lo[k] or yk >= y_hi[k]
             yh = min(max(yk, y_lo[k]), y_hi[k])
             Yhat[t, k] = yh
             eps[k] = Y[t, k] - yh
             for j in range(pf):
                 psi[j, k] = 0.0 if active else dh * S[k * n_chain, j]
-            for j in range(pf, p):
-                psi[j, k] = 0.0
+            if typ != OUT_IDENTITY:
+                for j in range(pf, p):
+                    psi[j, k] = 0.0
             if typ != OUT_IDENTITY and not active:
                 for r in range(q):
                     psi[pf + k * q + r, k] = dh_eta[r]
@@ -577,7 +579,7 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
         if ok:
             # Projection onto DM: the continuous-time linearisation at the current point must have its
             # eigenvalues left of -delta, and the discretised step must be stable (work[1] holds J(x, u)).
-            model_step(xv, WS[t], WH[t], theta_cf, cfg, fvar, fpow, nf, owner, n_chain, x_next, A_c, B_dummy,
+            model_step(xv, WS[t], WH[t], theta_c, cfg, fvar, fpow, nf, owner, n_chain, x_next, A_c, B_dummy,
                        False, work)
             ok = is_hurwitz(work[1], cfg[CF_MARGIN]) and is_stable(A_c, 1.0)
         if ok:

@@ -10,7 +10,7 @@ move. These starts put it near a stable model of the right time scale:
   ``s = log(z) / T`` give the characteristic frequency (geometric mean of ``|s|``) and the fastest one (1/s);
 * :func:`filtered_derivatives`: the state-variable filter ``lambda^n / (s + lambda)^n`` applied to a signal gives
   its filtered derivatives of orders 0..n (Young 1981; the classic start of continuous-time identification);
-* :func:`equation_error_theta`: with the filtered output derivatives standing in for the chain's states, the last
+* :func:`equation_error_thetas`: with the filtered output derivatives standing in for the chain's states, the last
   equation ``x_n' = phi(x, u, u')^T theta`` is linear in theta and is solved by least squares (exact for the linear
   terms, an approximation for the nonlinear ones);
 * :func:`unfold_sign`: a sign-insensitive measurement ``y = |v|`` is turned back into a signed one by flipping the
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.signal import lfilter
+from scipy.signal import lfilter, ss2tf
 
 from ident.rpem.structure import ChainStructure
 
@@ -92,24 +92,30 @@ def filtered_derivatives(x: np.ndarray, n: int, lam: float, ts: float, hold: boo
         Bc, Bn = B0, np.zeros(n)
     else:  # first-order hold: x(t) = x_k + (x_{k+1} - x_k) (t - t_k) / ts
         Bc, Bn = B0 - B1, B1
+    # z_{k+1} = Ad z_k + Bc x_k + Bn x_{k+1}; outputs z_k and its derivative A[-1] z_k + x_k, run as IIR filters
+    C = np.vstack([np.eye(n), A[-1:]])
+    D = np.zeros((n + 1, 2))
+    D[n, 0] = 1.0
+    x = np.asarray(x, dtype=float)
+    x_next = np.r_[x[1:], x[-1:]]
     out = np.empty((len(x), n + 1))
-    zt = np.zeros(n)
-    for k in range(len(x)):
-        out[k, :n] = zt
-        out[k, n] = A[-1] @ zt + x[k]
-        nxt = x[k + 1] if k + 1 < len(x) else x[k]
-        zt = Ad @ zt + Bc * x[k] + Bn * nxt
+    Bs = np.column_stack([Bc, Bn])
+    for i, w in enumerate((x, x_next)):
+        num, den = ss2tf(Ad, Bs, C, D, input=i)
+        for r in range(n + 1):
+            contrib = lfilter(num[r], den, w)
+            out[:, r] = contrib if i == 0 else out[:, r] + contrib
     return out * lam**n
 
 
-def equation_error_theta(structure: ChainStructure, u: np.ndarray, z: np.ndarray, lam: float, ts: float,
-                         hold: bool, linear_only: bool = False) -> np.ndarray | None:
-    """Least-squares theta of the chain model from filtered derivatives (module docstring), or None.
+def equation_error_thetas(structure: ChainStructure, u: np.ndarray, z: np.ndarray, lam: float, ts: float,
+                          hold: bool) -> list[np.ndarray]:
+    """Least-squares theta of the chain model from filtered derivatives (module docstring): two estimates, with
+    all terms and with the terms of degree at most one only (the others zero); either is left out if it fails.
 
     ``u`` are the inputs as the model sees them (transformed, normalised), ``z`` the chain outputs ``x_1`` per
     chain (the measured outputs, unfolded or offset as the output function requires), ``lam`` the filter
-    bandwidth and ``ts`` the sampling period, both in model time. ``linear_only``: estimate only the terms of
-    degree at most one and leave the others at zero.
+    bandwidth and ``ts`` the sampling period, both in model time.
     """
     s = structure
     n, d, m = s.n_chain, s.n_outputs, s.n_inputs
@@ -119,28 +125,34 @@ def equation_error_theta(structure: ChainStructure, u: np.ndarray, z: np.ndarray
                                 + [Uf[j][:, 0] for j in range(m)] + [Uf[j][:, 1] for j in range(m)])
     skip = min(int(np.ceil(6.0 * n / (lam * ts))), len(z) // 3)
     V = variables[skip:]
-    theta = np.zeros(s.n_params)
     degree = s.exponents.sum(axis=1)
-    for k in range(d):
-        rows = np.flatnonzero(s.owner == k)
-        if linear_only:
-            rows = rows[degree[rows] <= 1]
-        if rows.size == 0:
-            continue
-        E = s.exponents[rows]
-        with np.errstate(over="ignore", invalid="ignore"):
-            Phi = np.prod(V[:, None, :] ** E[None, :, :], axis=2)
-        target = Zf[k][skip:, n]
-        if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(target))) or len(target) < rows.size + 2:
-            return None
-        scale = np.sqrt(np.mean(Phi**2, axis=0)) + 1e-12
-        G = Phi / scale
-        ridge = 1e-8 * len(target)
-        sol = np.linalg.solve(G.T @ G + ridge * np.eye(rows.size), G.T @ target) / scale
-        if not np.all(np.isfinite(sol)):
-            return None
-        theta[rows] = sol
-    return theta
+    out = []
+    for linear_only in (False, True):
+        theta = np.zeros(s.n_params)
+        ok = True
+        for k in range(d):
+            rows = np.flatnonzero(s.owner == k)
+            if linear_only:
+                rows = rows[degree[rows] <= 1]
+            if rows.size == 0:
+                continue
+            E = s.exponents[rows]
+            with np.errstate(over="ignore", invalid="ignore"):
+                Phi = np.prod(V[:, None, :] ** E[None, :, :], axis=2)
+            target = Zf[k][skip:, n]
+            if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(target))) or len(target) < rows.size + 2:
+                ok = False
+                break
+            scale = np.sqrt(np.mean(Phi**2, axis=0)) + 1e-12
+            G = Phi / scale
+            sol = np.linalg.solve(G.T @ G + 1e-8 * len(target) * np.eye(rows.size), G.T @ target) / scale
+            if not np.all(np.isfinite(sol)):
+                ok = False
+                break
+            theta[rows] = sol
+        if ok:
+            out.append(theta)
+    return out
 
 
 def unfold_sign(y: np.ndarray, floor: float) -> np.ndarray:
@@ -163,3 +175,67 @@ def unfold_sign(y: np.ndarray, floor: float) -> np.ndarray:
     flips[k[crossing] + 1] = 1
     sign = np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)
     return sign * np.abs(v)
+
+
+def _unfold_quadratic(v: np.ndarray, half_width: int = 3) -> np.ndarray:
+    """Signs by local smoothness: at every low local minimum of ``v = |signal|`` keep the sign, or flip it after or
+    at the minimum, whichever a quadratic through the ``2 w + 1`` samples around it fits best (a V through zero
+    becomes a straight line when flipped; a rounded dip stays smooth when kept)."""
+    n = len(v)
+    k = np.arange(1, n - 1)
+    low = (v[k] <= v[k - 1]) & (v[k] < v[k + 1]) & (v[k] <= np.quantile(v, 0.3))
+    tt = np.arange(-half_width, half_width + 1)
+    X = np.column_stack([np.ones(tt.size), tt, tt**2])
+    resid = np.eye(tt.size) - X @ np.linalg.pinv(X)
+    flips = np.zeros(n, dtype=int)
+    for c in k[low]:
+        if c - half_width < 0 or c + half_width >= n:
+            continue
+        seg = v[c - half_width:c + half_width + 1]
+        options = (seg, np.where(tt > 0, -seg, seg), np.where(tt >= 0, -seg, seg))
+        best = int(np.argmin([np.sum((resid @ o) ** 2) for o in options]))
+        if best:
+            flips[c + (1 if best == 1 else 0)] ^= 1
+    return np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0) * v
+
+
+def _decode_arx(z: np.ndarray, v: np.ndarray, u: np.ndarray, order: int, rounds: int = 4) -> np.ndarray:
+    """Signs from the one-step predictions of an ARX model fitted to the signed signal ``z`` (refitted ``rounds``
+    times): each sample takes the sign the model predicts from the samples before it."""
+    N, m = len(z), u.shape[1]
+    for _ in range(rounds):
+        Phi = np.column_stack([z[order - k:N - k] for k in range(1, order + 1)]
+                              + [u[order - k:N - k, j] for k in range(1, order + 1) for j in range(m)]
+                              + [np.ones(N - order)])
+        th = np.linalg.lstsq(Phi, z[order:], rcond=None)[0]
+        a, b, c = th[:order], th[order:order + order * m].reshape(order, m), th[-1]
+        new = z.copy()
+        for t in range(order, N):
+            pred = a @ new[t - order:t][::-1] + np.sum(b * u[t - order:t][::-1]) + c
+            new[t] = v[t] if pred >= 0.0 else -v[t]
+        if np.array_equal(np.sign(new), np.sign(z)):
+            break
+        z = new
+    return z
+
+
+def unfold_candidates(y: np.ndarray, floor: float, u: np.ndarray, n_states: int) -> list[np.ndarray]:
+    """Several signed versions of a sign-insensitive output ``y = floor + |v|`` (1-D): :func:`unfold_sign`, the
+    local-quadratic rule, and each refined by ARX one-step sign decoding of orders ``n + 1`` and ``2 n``.
+
+    A single wrong flip changes the sign of everything after it, and no rule is right on every record, so the
+    estimator fits a start to each and keeps the one whose ``|x|`` model simulates the data best (a criterion the
+    unknown overall sign cannot affect)."""
+    v = np.abs(np.asarray(y, dtype=float) - floor)
+    firsts = [unfold_sign(y, floor), _unfold_quadratic(v)]
+    out: list[np.ndarray] = []
+    for z in firsts:
+        out.append(z)
+        for order in (n_states + 1, 2 * n_states):
+            if len(v) > 10 * (order + 1) * (u.shape[1] + 1):
+                out.append(_decode_arx(z.copy(), v, u, order))
+    unique: list[np.ndarray] = []
+    for z in out:
+        if not any(abs(np.mean(np.sign(z) == np.sign(w)) - 0.5) > 0.499 for w in unique):
+            unique.append(z)
+    return unique

@@ -308,7 +308,7 @@ def test_a_killed_save_loop_always_leaves_a_loadable_pair(tmp_path):
             b.save({str(tmp_path / 'm')!r})
             a.save({str(tmp_path / 'm')!r})
     """
-    for delay in (0.05, 0.13, 0.31):
+    for delay in (0.07, 0.29):
         proc = subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)], stdout=subprocess.PIPE, text=True)
         assert proc.stdout.readline().strip() == "ready"
         time.sleep(delay)
