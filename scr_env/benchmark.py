@@ -203,16 +203,23 @@ class BenchmarkResult:
 
 
 def evaluate(policy: Any, task: str | Task, anchors: dict[str, Any] | str | Path | None = None,
-             progress: bool = False) -> BenchmarkResult:
+             progress: bool = False, max_steps: int | None = None) -> BenchmarkResult:
     """Score ``policy`` on ``task``'s evaluation protocol against the stored anchors (see the module docstring).
 
         from scr_env.benchmark import evaluate
         from control.baselines import LookupTableDosing
         evaluate(LookupTableDosing(), "scr_env/UreaSCR-WHTC-v0").score   # 0.0
+
+    ``max_steps``: episodes cut short, for smoke tests with anchors made the same way (``experiments.rl_anchors
+    --max-steps``); it must equal the anchors' ``partial_episodes`` (ValueError otherwise).
     """
     t = get_task(task)
     anchors = anchors if isinstance(anchors, dict) else load_anchors(anchors)
-    rows = score_rows(episode_metrics(policy, t, progress=progress), t, anchors)
+    stored = (anchors["tasks"].get(t.id) or {}).get("partial_episodes")
+    if stored != max_steps:
+        raise ValueError(f"the anchors of {t.id} are for episodes cut at {stored} steps, the evaluation asks for "
+                         f"{max_steps}: make anchors and evaluation alike (None: whole episodes)")
+    rows = score_rows(episode_metrics(policy, t, max_steps, progress=progress), t, anchors)
     scores = [r["score"] for r in rows]
     return BenchmarkResult(
         task_id=t.id, score=float(np.mean(scores)), ci=bootstrap_ci(scores, statistic=np.mean),

@@ -74,10 +74,17 @@ def _policy_class(algo: str) -> Any:
 
 
 def build_sb3_policy(algo: str, input_size: int, policy_kwargs: dict[str, Any] | None = None) -> Any:
-    """A fresh stable-baselines3 policy network (PPO's ``ActorCriticPolicy``, ``SACPolicy`` or ``TD3Policy``) for
+    """A fresh stable-baselines3 policy network (PPO's ``ActorCriticPolicy``, ``SACPolicy`` or ``TD3Policy``; for
+    ``"BC"`` the behaviour-cloning MLP of :mod:`control.rl.bc`) for
     ``input_size`` normalised inputs and one action in [-1, 1], with the ``net_arch`` (and, for PPO,
     ``log_std_init``) of ``policy_kwargs``; in evaluation mode, on the CPU. The weights are SB3's initial ones:
     load a ``state_dict`` into it."""
+    if isinstance(algo, str) and algo.upper() == "BC":  # behaviour cloning's MLP (control.rl.bc)
+        from control.rl.bc import MLPActor
+
+        net = MLPActor(int(input_size), list((policy_kwargs or {}).get("net_arch", (64, 64))))
+        net.set_training_mode(False)
+        return net
     cls = _policy_class(algo)
     kwargs = {k: v for k, v in (policy_kwargs or {}).items() if k in _POLICY_KWARGS}
     obs_space = spaces.Box(-np.inf, np.inf, shape=(int(input_size),), dtype=np.float32)

@@ -34,15 +34,21 @@ class SlipLimitWarning(UserWarning):
     """No candidate policy kept its validation mean NH3 slip within the limit."""
 
 
-def validate(candidates: list[Path], seeds: tuple[int, ...] = VALIDATION_SEEDS) -> list[dict[str, Any]]:
-    """KPIs of each candidate policy on the validation cycles (long random cycles, never the WHTC/WHSC)."""
+def validate(candidates: list[Path], seeds: tuple[int, ...] = VALIDATION_SEEDS,
+             env_kwargs: dict[str, Any] | None = None,
+             duration_s: float = VALIDATION_DURATION_S) -> list[dict[str, Any]]:
+    """KPIs of each candidate policy on the validation cycles (long random cycles, never the WHTC/WHSC);
+    ``env_kwargs``: further environment arguments (a benchmark task's training distribution: actuator, catalyst
+    randomisation, age; the cycle stays random); ``duration_s``: length of each validation cycle (default
+    :data:`VALIDATION_DURATION_S`; shorter only in smoke tests)."""
     from control.evaluation import evaluate
     from control.rl.policy import load_policy
 
     rows = []
     for path in candidates:
-        res = evaluate(load_policy(path), cycles=("random",), seeds=seeds,
-                       env_kwargs={"random_cycle_duration_s": VALIDATION_DURATION_S}, name=path.stem)
+        kw = {k: v for k, v in (env_kwargs or {}).items() if k != "cycle"}
+        kw["random_cycle_duration_s"] = float(duration_s)
+        res = evaluate(load_policy(path), cycles=("random",), seeds=seeds, env_kwargs=kw, name=path.stem)
         tp = [r.kpis["tailpipe_nox_g_per_kwh"] for r in res]
         slip = [r.kpis["mean_nh3_slip_ppm"] for r in res]
         rows.append({"candidate": str(path), "timesteps": int(json.loads(path.read_text()).get("timesteps", 0)),
