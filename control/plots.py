@@ -179,15 +179,15 @@ def learning_curve_figure(curves: Mapping[str, Sequence[Mapping[str, Any]]], tit
         for j, meta in enumerate(metas):
             curve = meta.get("learning_curve") or {}
             label = method if j == 0 else None
-            if "timesteps" in curve and curve["timesteps"]:
+            rows = (meta.get("selection") or {}).get("candidates") or []
+            if rows:
+                axes[0].plot([r["timesteps"] for r in rows], [r["tailpipe_nox_g_per_kwh_mean"] for r in rows], "o",
+                             color=c, ms=4, label=label if not curve.get("timesteps") else None)
+                axes[1].plot([r["timesteps"] for r in rows], [r["mean_nh3_slip_ppm_max"] for r in rows], "o",
+                             color=c, ms=4)
+            if curve.get("timesteps"):
                 axes[0].plot(curve["timesteps"], curve["tailpipe_nox_g_per_kwh"], color=c, alpha=0.6, label=label)
                 axes[1].plot(curve["timesteps"], curve["mean_nh3_slip_ppm"], color=c, alpha=0.6, label=label)
-                rows = (meta.get("selection") or {}).get("candidates") or []
-                if rows:
-                    axes[0].plot([r["timesteps"] for r in rows], [r["tailpipe_nox_g_per_kwh_mean"] for r in rows],
-                                 "o", color=c, ms=4)
-                    axes[1].plot([r["timesteps"] for r in rows], [r["mean_nh3_slip_ppm_max"] for r in rows], "o",
-                                 color=c, ms=4)
             elif "epoch" in curve:
                 axes[2].plot(curve["epoch"], curve["mse"], color=c, alpha=0.6, label=label)
     axes[0].set(xlabel="environment steps", ylabel="tailpipe NOx [g/kWh]",

@@ -80,10 +80,10 @@ def main(argv: list[str] | None = None) -> dict:
         write_json(args.out, data)  # after every task: a long run keeps what it finished
     for task in tasks:
         for e in data["tasks"][task.id]["episodes"]:
+            lut, ref = e["lookup_table"], e["reference"]
             print(f"{task.name:10s} {json.dumps(e['condition']):18s} seed {e['seed']:3d}  look-up table "
-                  f"{e['lookup_table']['tailpipe_nox_g_per_kwh']:.3f} g/kWh ({e['lookup_table']['mean_nh3_slip_ppm']:.1f}"
-                  f" ppm)  reference {e['reference']['tailpipe_nox_g_per_kwh']:.3f} g/kWh "
-                  f"({e['reference']['mean_nh3_slip_ppm']:.1f} ppm)")
+                  f"{lut['tailpipe_nox_g_per_kwh']:.3f} g/kWh ({lut['mean_nh3_slip_ppm']:.1f} ppm)  reference "
+                  f"{ref['tailpipe_nox_g_per_kwh']:.3f} g/kWh ({ref['mean_nh3_slip_ppm']:.1f} ppm)")
     if args.json:
         write_json(args.json, data)
     return data

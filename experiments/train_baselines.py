@@ -7,7 +7,7 @@
 Each run (control.rl.suite.train_one) trains on its group's training distribution (scr_env.tasks), validates its
 checkpoints on random cycles of that distribution and keeps the selected one (flagged if over the slip limit); with
 ``--ship`` it goes to control/policies/benchmark/<group>/<algo>_s<seed>.json, where experiments.rl_benchmark finds
-it. Default timesteps: control.rl.suite.SUITE_TIMESTEPS (PPO 150 k, SAC 40 k, TD3 40 k), sized for about 3 hours for
+it. Default timesteps: control.rl.suite.SUITE_TIMESTEPS (PPO 150 k, SAC 60 k, TD3 60 k), sized for about 3 hours for
 all 45 runs with 2 processes on 2 cores shared with other jobs; ``--timesteps`` overrides every run's. The report
 (``--json``, and report.json in the run folder) gives every run's wall time, steps per second and selection.
 Retrain after the plant changes (the phys stream's chemistry and ageing) or the reference does (control.limit).

@@ -36,7 +36,7 @@ if ENV_ID not in registry:
         vector_entry_point="scr_env.envs.vector:UreaSCRVectorEnv",
     )
 
-from scr_env.tasks import MAIN_TASKS, TASKS, register_tasks  # noqa: E402
+from scr_env.tasks import MAIN_TASKS, TASKS, register_tasks
 
 register_tasks()  # the benchmark tasks scr_env/UreaSCR-<task>-v0 (scr_env.tasks)
 
@@ -44,8 +44,8 @@ _SUBMODULES = ("actuator", "benchmark", "casadi_model", "constants", "cycles", "
                "lab", "params", "physics", "rollout", "startup", "tasks", "wrappers")
 
 __all__ = [
-    "ENV_ID", "MAIN_TASKS", "TASKS", "CatalystParams", "DosingParams", "ExhaustTrace", "SensorParams", "aged", "available_cycles",
-    "catalyst_preset", "load_cycle", "random_cycle",
+    "ENV_ID", "MAIN_TASKS", "TASKS", "CatalystParams", "DosingParams", "ExhaustTrace", "SensorParams", "aged",
+    "available_cycles", "catalyst_preset", "load_cycle", "random_cycle",
 ]
 
 

@@ -6,12 +6,17 @@ evaluation condition); :func:`make_eval_env` builds every condition, :func:`trai
 distribution (for ``gym.make`` or ``gym.make_vec(..., vectorization_mode="vector_entry_point")``), and
 :func:`scr_env.benchmark.evaluate` scores a policy on the protocol.
 
-| task id | hard axis | training distribution | evaluation protocol (held out) |
-|---|---|---|---|
-| ``scr_env/UreaSCR-WHTC-v0`` | transient generalisation: random cycles in training, the real transient cycle in test | hot random cycles of 1800 s (a new cycle per reset), fresh catalyst | hot WHTC, reset seeds 0-4 (sensor noise): 5 episodes |
-| ``scr_env/UreaSCR-WHSC-v0`` | high-temperature steady modes and load steps (stored NH3 released) | as WHTC (the same training runs serve both) | hot WHSC, reset seeds 0-4: 5 episodes |
-| ``scr_env/UreaSCR-Aged-v0`` | unobserved plant drift: the catalyst's hydrothermal age | as WHTC, catalyst age drawn uniformly in 0-16 h per episode | hot WHTC at 0, 4 and 16 h (one age per episode), seeds 0-1: 6 episodes |
-| ``scr_env/UreaSCR-Randomised-v0`` | catalyst-to-catalyst spread (production tolerance, unobserved) | as WHTC, catalyst randomised +/-20 % per episode | hot WHTC, 5 held-out catalysts drawn by reset seeds 100-104: 5 episodes |
+* ``scr_env/UreaSCR-WHTC-v0`` -- hard axis: transient generalisation (random cycles in training, the real
+  transient cycle in test). Training: hot random cycles of 1800 s, a new cycle per reset, fresh catalyst.
+  Evaluation (held out): hot WHTC, reset seeds 0-4 (sensor noise), 5 episodes.
+* ``scr_env/UreaSCR-WHSC-v0`` -- hard axis: high-temperature steady modes and load steps, where stored NH3 is
+  released. Training: as WHTC (the same training runs serve both). Evaluation: hot WHSC, seeds 0-4, 5 episodes.
+* ``scr_env/UreaSCR-Aged-v0`` -- hard axis: unobserved plant drift, the catalyst's hydrothermal age. Training: as
+  WHTC, the age drawn uniformly in 0-16 h per episode. Evaluation: hot WHTC at 0, 4 and 16 h (one age per
+  episode), seeds 0-1, 6 episodes.
+* ``scr_env/UreaSCR-Randomised-v0`` -- hard axis: catalyst-to-catalyst spread (capacity, activity, volume +/-20 %,
+  unobserved). Training: as WHTC, a randomised catalyst per episode. Evaluation: hot WHTC on 5 held-out catalysts
+  drawn by reset seeds 100-104, 5 episodes.
 
 Every task observes what most trucks measure -- upstream NOx, inlet temperature, exhaust flow, the tailpipe NOx sensor
 (cross-sensitive to NH3) and the previous action; no NH3 sensor, no catalyst state (``nh3_sensor=False``,

@@ -54,7 +54,7 @@ def _torch_module() -> Any:
     return MLPActor
 
 
-def MLPActor(input_size: int, net_arch: list[int] | tuple[int, ...] = (64, 64)) -> Any:  # noqa: N802 (a factory)
+def MLPActor(input_size: int, net_arch: list[int] | tuple[int, ...] = (64, 64)) -> Any:
     """The BC network: a torch module (built lazily so that importing this module needs no torch)."""
     return _torch_module()(input_size, net_arch)
 
@@ -114,13 +114,14 @@ def train_bc(dataset: Any, seed: int = 0, pipeline: PipelineConfig | None = None
             opt.zero_grad()
             loss.backward()
             opt.step()
-            total += float(loss) * len(idx)
+            total += loss.item() * len(idx)
         losses.append(total / len(perm))
     net.eval()
     meta = {"algo": "BC", "observation_names": list(EXPECTED_OBSERVATION), "pipeline": pipeline.to_dict(),
-            "env_kwargs": {}, "seed": int(seed), "hyperparameters": {"policy_kwargs": {"net_arch": hp["net_arch"]},
-                                                                     **{k: v for k, v in hp.items() if k != "net_arch"}},
-            "dataset": str(dataset.spec.dataset_id), "samples": int(len(x)), "timesteps": int(len(x)),
+            "env_kwargs": {}, "seed": int(seed),
+            "hyperparameters": {"policy_kwargs": {"net_arch": hp["net_arch"]},
+                                **{k: v for k, v in hp.items() if k != "net_arch"}},
+            "dataset": str(dataset.spec.dataset_id), "samples": len(x), "timesteps": len(x),
             "wall_time_s": round(time.perf_counter() - t0, 2),
             "learning_curve": {"epoch": list(range(1, len(losses) + 1)), "mse": losses}}
     policy.metadata.update(meta)

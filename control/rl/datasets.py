@@ -1,14 +1,15 @@
 """Offline datasets of the benchmark tasks in Minari format, collected locally with Minari's ``DataCollector``.
 
 For each dataset group of the main tasks (``fresh``: WHTC and WHSC, which share their training distribution;
-``aged``; ``randomised``; :data:`scr_env.tasks.Task.dataset_group`), four datasets, ids ``scr-dosing/<group>/<kind>-v0``:
+``aged``; ``randomised``; :data:`scr_env.tasks.Task.dataset_group`), four datasets, ids
+``scr-dosing/<group>/<kind>-v0``:
 
-| kind | behaviour policy |
-|---|---|
-| ``expert`` | the oracle NMPC (:func:`control.factory.oracle_mpc`: privileged state and the cycle preview, which the dataset never contains) |
-| ``medium`` | the look-up table (:class:`control.baselines.LookupTableDosing`), episodes alternating with the feedforward + PI baseline (:class:`control.baselines.FeedforwardPI`) |
-| ``random`` | uniform random actions in [-1, 1] (seeded) |
-| ``mixed`` | the union of the three (``minari.combine_datasets``) |
+* ``expert``: the oracle NMPC (:func:`control.factory.oracle_mpc`: privileged state and the cycle preview, which
+  the dataset never contains);
+* ``medium``: the look-up table (:class:`control.baselines.LookupTableDosing`), episodes alternating with the
+  feedforward + PI baseline (:class:`control.baselines.FeedforwardPI`);
+* ``random``: uniform random actions in [-1, 1] (seeded);
+* ``mixed``: the union of the three (``minari.combine_datasets``).
 
 Episodes run on the task's **training distribution** (hot random cycles, a new one per episode; the Aged group at
 a random age, the randomised group on a random catalyst), never on the held-out WHTC/WHSC evaluation; episode i is
@@ -24,7 +25,8 @@ dataset. Storage: Minari's HDF5 format (arrays and JSON metadata; nothing pickle
 The datasets live under ``MINARI_DATASETS_PATH`` (Minari's variable; :func:`datasets_root` sets it for a block):
 
     MINARI_DATASETS_PATH=runs/datasets python -m experiments.make_datasets
-    MINARI_DATASETS_PATH=runs/datasets python -c "import minari; print(minari.load_dataset('scr-dosing/fresh/expert-v0'))"
+    MINARI_DATASETS_PATH=runs/datasets python -c \
+        "import minari; print(minari.load_dataset('scr-dosing/fresh/expert-v0'))"
 """
 from __future__ import annotations
 

@@ -31,7 +31,7 @@ BENCHMARK_POLICY_DIR = Path(__file__).resolve().parent.parent / "policies" / "be
 SUITE_ALGOS = ("ppo", "sac", "td3")
 SUITE_SEEDS = (0, 1, 2, 3, 4)
 #: environment steps per run (all plants of the vector env together)
-SUITE_TIMESTEPS = {"ppo": 150_000, "sac": 40_000, "td3": 40_000}
+SUITE_TIMESTEPS = {"ppo": 150_000, "sac": 60_000, "td3": 60_000}
 N_CHECKPOINTS = 4
 SUITE_VALIDATION_SEEDS = (1001, 1002)
 SUITE_PIPELINE = PipelineConfig(action="anr")

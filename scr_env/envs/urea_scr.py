@@ -110,7 +110,7 @@ class UreaSCREnv(gym.Env):
     | cold_start | False | aftertreatment starts at ambient temperature |
     | randomize | 0.0 | domain randomisation spread (e.g. 0.2 = +/-20 %) of capacity, activity and volume per reset |
     | initial_coverage | 0.0 | NH3 coverage at reset |
-    | actuator | None | a dosing unit between the command and the injection: None (ideal), "default", a dict or :class:`~scr_env.actuator.ActuatorParams` (first-order lag and slew limit) |
+    | actuator | None | dosing unit (lag, slew limit): None, "default", a dict or ``scr_env.actuator.ActuatorParams`` |
     | render_mode | None | "rgb_array" or "human": plot of the episode so far |
 
     Flags (``sensor_noise``, ``nh3_sensor``, ``privileged``, ``cold_start``) must be ``True``/``False`` (or numpy
@@ -250,7 +250,8 @@ class UreaSCREnv(gym.Env):
         info = {
             "nox_cost": terms[0], "nh3_cost": terms[1], "adblue_cost": terms[2],
             "tailpipe_nox_ppm": out[K.O_NO] + out[K.O_NO2], "tailpipe_nh3_ppm": out[K.O_NH3],
-            "engine_out_nox_ppm": self._nox_list[k], "adblue_g_s": float(buf[0, b.col_adblue]), "time_s": self._k * self.dt,
+            "engine_out_nox_ppm": self._nox_list[k], "adblue_g_s": float(buf[0, b.col_adblue]),
+            "time_s": self._k * self.dt,
         }
         if self.render_mode is not None:
             self._record(self._k * self.dt, info["engine_out_nox_ppm"], info["tailpipe_nox_ppm"],

@@ -99,7 +99,7 @@ def test_tampered_metadata_is_refused_naming_the_file(tmp_path, change, match):
 
 
 def test_damaged_weights_are_refused(tmp_path):
-    path, net = _save(tmp_path, "ppo")
+    path, _ = _save(tmp_path, "ppo")
     weights = tmp_path / "p_policy.npz"
     with np.load(weights) as z:
         arrays = {k: z[k] for k in z.files}
