@@ -49,7 +49,6 @@ from scr_env.physics import kernel as K
 
 __all__ = [
     "INPUT_SIGNALS",
-    "StackedModels",
     "SurrogateModel",
     "SurrogateSCREnv",
     "SurrogateVectorEnv",
@@ -335,32 +334,6 @@ class SurrogateVectorEnv(VectorEnv):
         return self._b.obs.copy(), reward, np.zeros(self.num_envs, dtype=bool), done.copy(), infos
 
 
-class StackedModels:
-    """Single-output models side by side as one MIMO model: ``to_casadi`` concatenates their states; every model
-    gets the same inputs and gives one output (for MISO identifiers such as
-    :class:`ident.multiple_model.MultipleModel`).
-    """
-
-    def __init__(self, models: Sequence[Any]) -> None:
-        self.models = list(models)
-
-    def to_casadi(self) -> Any:
-        import casadi as ca
-
-        fs = [m.to_casadi() for m in self.models]
-        nu = fs[0].size1_in(1)
-        sizes = [f.size1_in(0) for f in fs]
-        x = ca.SX.sym("x", sum(sizes))
-        u = ca.SX.sym("u", nu)
-        xs, ys, i = [], [], 0
-        for f, n in zip(fs, sizes, strict=True):
-            xn, y = f(x[i:i + n], u)
-            xs.append(xn)
-            ys.append(y)
-            i += n
-        return ca.Function("step", [x, u], [ca.vertcat(*xs), ca.vertcat(*ys)], ["x", "u"], ["x_next", "y"])
-
-
 # --------------------------------------------------------------------------------------------- experiment helpers
 def fit_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str = "mm-arx",
                          na: int = 2, nb: int = 2) -> tuple[SurrogateModel, dict[str, Any]]:
@@ -380,6 +353,7 @@ def fit_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str = "mm-a
     from ident.multiple_model import MultipleModel, quantile_edges
     from ident.plant_data import excitation_dataset
     from ident.preprocessing import Normalizer
+    from ident.stack import OutputStack
 
     exc = RandomSteps(low=-1.0, high=1.0, min_hold_s=4.0, max_hold_s=60.0)
     sets = [excitation_dataset("random", seed=s, base_anr=0.9, excitation=exc).select(outputs=[0, 1])
@@ -417,7 +391,7 @@ def fit_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str = "mm-a
         edges = [quantile_edges(un[:, c], 2) for c in (2, 3)]
         parts = [MultipleModel(scheduling=[2, 3], edges=edges, local="arx", na=na, nb=nb, nk=0).fit(un, yn[:, [j]])
                  for j in range(yn.shape[1])]
-        model = StackedModels(parts)
+        model = OutputStack.from_models(parts)  # MISO local models side by side as one MIMO model
         fit = [float(np.atleast_1d(compare(m, val_n.select(outputs=[j])).fit)[0]) for j, m in enumerate(parts)]
     else:
         raise ValueError(f"kind must be 'arx' or 'mm-arx', got {kind!r}")
