@@ -282,7 +282,8 @@ def _read_weights(json_path: Path, meta: dict[str, Any]) -> dict[str, np.ndarray
 
             with zipfile.ZipFile(path) as z:
                 raw = z.read("policy.pth")
-            state = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+            buffer = io.BytesIO(raw)
+            state = torch.load(buffer, map_location="cpu", weights_only=True)
             if not isinstance(state, dict):
                 raise PolicyFileError(f"{path}: policy.pth is not a state dict")
             return {str(k): v.detach().cpu().numpy() for k, v in state.items()}
