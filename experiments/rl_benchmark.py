@@ -10,7 +10,9 @@ SAC, TD3 (experiments.train_baselines) and BC (experiments.make_datasets), each 
 protocol; one score per training seed (the mean over the protocol's episodes), aggregated by IQM and a percentile
 bootstrap over seeds. The anchors: ``lookup_table`` is re-run on the protocol (its score 0 shows that the stored
 anchors still hold), ``reference`` is read from the stored anchors (scr_env/data/benchmark/anchors.json; not
-re-solved). The run folder gets leaderboard.md (the README table), learning_curves_<group>.png and report.json.
+re-solved). The single shipped policies of control/policies (``ppo``, ``sac``: one seed, trained before the tasks
+existed) are scored beside, as ``<name>_single`` with ``n_seeds`` 1 (``--single`` to choose). The run folder gets
+leaderboard.md (the README table), learning_curves_<group>.png and report.json.
 """
 from __future__ import annotations
 
@@ -31,6 +33,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--policies", type=Path, default=None, help="folder of <group>/<method>_s<seed>.json")
     p.add_argument("--methods", nargs="+", default=None, help="methods to include (default: all found)")
     p.add_argument("--anchors", type=Path, default=None, help="anchors file (default: the stored one)")
+    p.add_argument("--single", nargs="*", default=None, help="single shipped policies of control/policies to score "
+                   "beside (default: all of them; entries '<name>_single', 1 seed)")
     p.add_argument("--max-steps", type=int, default=None, help="cut episodes short (smoke tests, with anchors alike)")
     p.add_argument("--out", type=Path, default=None, help="run folder")
     p.add_argument("--json", type=Path, default=None)
@@ -48,7 +52,7 @@ def main(argv: list[str] | None = None) -> dict:
     command = "python -m experiments.rl_benchmark " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     from control.baselines import LookupTableDosing
     from control.plots import learning_curve_figure
-    from control.rl.policy import load_policy
+    from control.rl.policy import available_policies, load_policy
     from control.rl.suite import policy_files
     from scr_env.benchmark import aggregate, evaluate, load_anchors
     from scr_env.tasks import MAIN_TASKS, get_task
@@ -85,6 +89,12 @@ def main(argv: list[str] | None = None) -> dict:
             scores[method] = entry
             print(f"{task.name:10s} {method:6s} {_fmt(entry)}  chatter {entry['chatter_g_s_per_h']:.0f} g/s/h "
                   f"({len(paths)} seeds)", flush=True)
+        for name in (available_policies() if args.single is None else args.single):
+            r = evaluate(load_policy(name), task, anchors, max_steps=args.max_steps)
+            scores[f"{name}_single"] = {**aggregate([r.score]), "chatter_g_s_per_h": r.chatter_g_s_per_h,
+                                        "raw_iqm": r.raw_score, "over_limit_episodes": r.over_limit,
+                                        "note": f"control/policies/{name}: one seed, trained without the actuator "
+                                                f"on the older setup (not a task baseline)"}
         report["tasks"][task.id] = {"scores": scores, "task": task.describe(),
                                     "reference_kind": anchors["tasks"][task.id].get("reference_kind")}
     report["wall_time_s"] = round(time.perf_counter() - t0, 1)

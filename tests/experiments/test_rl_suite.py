@@ -30,7 +30,7 @@ def test_pipeline_smoke_writes_the_leaderboard_contract(tmp_path):
                         str(policies), "--out", str(tmp_path / "ds")])
     out = tmp_path / "board.json"
     rl_benchmark.main(["--tasks", "WHTC", "--policies", str(policies), "--anchors", str(anchors), "--max-steps", "40",
-                       "--out", str(tmp_path / "bench"), "--json", str(out)])
+                       "--single", "--out", str(tmp_path / "bench"), "--json", str(out)])
     board = json.loads(out.read_text())
     assert list(board["tasks"]) == ["scr_env/UreaSCR-WHTC-v0"]
     for tid, d in board["tasks"].items():
