@@ -205,12 +205,14 @@ class CycleOptimum:
     reduced_iterations : IPOPT iterations of the reduced-space warm start (from the look-up table, from a
         neighbouring budget); 0 skips it.
     print_level : IPOPT's output (0 quiet, 5 an iteration log).
+    ipopt_options : further IPOPT options of the multiple-shooting NLP (without the ``ipopt.`` prefix).
     """
 
     def __init__(self, cycle: str | os.PathLike | ExhaustTrace = "whtc", *,
                  env_kwargs: Mapping[str, Any] | None = None, hold_steps: int = 1, peak_ppm: float | None = None,
                  jit: bool | None = None, max_iter: int = 3000, tol: float = 1e-8,
-                 reduced_iterations: tuple[int, int] = REDUCED_ITERATIONS, print_level: int = 0) -> None:
+                 reduced_iterations: tuple[int, int] = REDUCED_ITERATIONS, print_level: int = 0,
+                 ipopt_options: Mapping[str, Any] | None = None) -> None:
         from scr_env.envs import core
         from scr_env.envs.config import O2_FRACTION
         from scr_env.physics import kernel as K
@@ -223,6 +225,7 @@ class CycleOptimum:
             raise ValueError(f"reduced_iterations must be a pair of iteration counts, got {reduced_iterations!r}")
         self.reduced_iterations = tuple(_count("reduced_iterations", v, 0) for v in reduced_iterations)
         self.print_level = _count("print_level", print_level, 0)
+        self.ipopt_options = dict(ipopt_options or {})
         self.env_kwargs = _plant_kwargs(env_kwargs)
         self.cycle = cycle
         self._env = env = make_env(cycle, self.env_kwargs)
@@ -305,6 +308,7 @@ class CycleOptimum:
             opts.update({"ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-6,
                          "ipopt.warm_start_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9,
                          "ipopt.warm_start_slack_bound_push": 1e-9})
+        opts.update({f"ipopt.{k}": v for k, v in self.ipopt_options.items()})
         return opts
 
     def _solver(self, warm: bool) -> Any:
