@@ -38,6 +38,7 @@ from control.limit import (
     plant_fingerprint,
     replay,
     stored_limit_path,
+    stored_limits,
     write_limit_document,
 )
 from experiments._runs import run_folder, save_results, write_json
@@ -62,6 +63,20 @@ def _read_json(path: Path, what: str) -> dict[str, Any]:
     if not isinstance(doc, dict) or not isinstance(doc.get("cycles"), dict):
         raise SystemExit(f"{what} {path}: not a control_benchmark JSON (no 'cycles')")
     return doc
+
+
+def _stored_document(doc: dict[str, Any]) -> dict[str, Any]:
+    """The package's limit document with the cycles of ``doc`` replaced (each cycle keeps its own command)."""
+    try:
+        stored = stored_limits()
+    except (FileNotFoundError, ValueError):
+        stored = {"cycles": {}}
+    cycles = {c: e for c, e in stored["cycles"].items() if c in STORED_CYCLES and c not in doc["cycles"]}
+    cycles.update({c: {**e, "command": doc["command"], "git_commit": doc["git_commit"], "created": doc["created"]}
+                   for c, e in doc["cycles"].items()})
+    return {**{k: v for k, v in doc.items() if k not in ("cycles", "benchmark", "controllers_against_limit")},
+            "command": " ; ".join(sorted({e["command"] for e in cycles.values()})), "cycles": dict(sorted(
+                cycles.items()))}
 
 
 def solve_cycle(cycle: str, args: argparse.Namespace) -> dict[str, Any]:
@@ -105,9 +120,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                     help="only these steps of each cycle (a short problem)")
     ap.add_argument("--store", action="store_true", help="also write the stored limit of the package")
     args = ap.parse_args(argv)
-    if args.store and (args.segment is not None or args.hold_steps != 1 or sorted(args.cycles) != sorted(
+    if args.store and (args.segment is not None or args.hold_steps != 1 or not set(args.cycles) <= set(
             STORED_CYCLES) or sorted(args.budgets) != sorted(DEFAULT_BUDGETS_PPM)):
-        ap.error("--store writes the package's limit: only with the default cycles, budgets and hold steps")
+        ap.error("--store writes the package's limit: only with the stored cycles (whtc, whsc), the default budgets "
+                 "and hold steps")
     benchmark = _read_json(args.benchmark, "--benchmark") if args.benchmark is not None else None
     out = run_folder("limit", json_path=args.json)
     command = "python -m experiments.limit " + shlex.join(sys.argv[1:] if argv is None else argv)
@@ -130,9 +146,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                       f"ppm, gap to limit closed {gap if gap is None else f'{gap:.2f}'} {flag}")
     pareto_figure(doc, out / "pareto_front.png", benchmark)
     save_results(out, "limit.json", doc, args.json)
-    if args.store:
-        path = write_limit_document(doc, stored_limit_path())
-        print(f"stored the limit in {path}")
+    if args.store:  # the cycles solved replace theirs in the stored document; the others are kept
+        stored = _stored_document(doc)
+        path = write_limit_document(stored, stored_limit_path())
+        print(f"stored the limit of {', '.join(args.cycles)} in {path}")
     write_json(out / "command.json", {"command": doc["command"]})
     print(f"wrote {out} in {doc['wall_time_s']:.0f} s")
     return doc
