@@ -18,8 +18,9 @@ DEFAULT_BUDGETS_PPM: tuple[float, ...] = (1.0, 2.0, 5.0, 10.0, 20.0)
 REFERENCE_BUDGET_PPM = float(EURO_VI_NH3_SLIP_LIMIT_PPM)
 #: the cycles of the stored limit: the hot WHTC and WHSC at the 0.5 s control interval of the benchmark
 STORED_CYCLES: tuple[str, ...] = ("whtc", "whsc")
-#: environment arguments that define the plant of a limit (anything else, e.g. ``randomize``, is refused)
-PLANT_ARGUMENTS = ("catalyst", "dt", "ageing", "dosing", "cold_start", "initial_coverage")
+#: environment arguments that define the plant of a limit (anything else, e.g. ``sensor_noise`` or ``actuator``, is
+#: refused); with ``randomize`` or an ``age_h`` range the plant is the episode's drawn at ``reset(seed=seed)``
+PLANT_ARGUMENTS = ("catalyst", "dt", "ageing", "age_h", "randomize", "dosing", "cold_start", "initial_coverage")
 
 
 # ------------------------------------------------------------------------------------------------------- results
@@ -72,6 +73,24 @@ class LimitResult:
         """Relative difference of the replayed and the predicted tailpipe NOx [-] (NaN if not replayed)."""
         return abs(self.replay_tailpipe_nox_g_per_kwh - self.tailpipe_nox_g_per_kwh) / max(
             abs(self.tailpipe_nox_g_per_kwh), 1e-12)
+
+    def __getitem__(self, key: str) -> Any:
+        """The record's entries by name, as in the stored JSON (:meth:`to_dict`): ``result["tailpipe_nox_g_per_kwh"]``,
+        ``result["replay_tailpipe_nox_g_per_kwh"]``, ``result["dose_g_s"]`` (the array); ``KeyError`` naming the
+        key and the known ones otherwise."""
+        if key == "dose_g_s":
+            return self.dose_g_s
+        rec = self.to_dict(dose=False)
+        if key not in rec:
+            raise KeyError(f"{key!r} is not an entry of a limit record; entries: {', '.join(rec)}, dose_g_s")
+        return rec[key]
+
+    def __float__(self) -> float:
+        """The limit as one number: the environment's tailpipe NOx of the optimal dose replayed open loop [g/kWh]
+        (:attr:`replay_tailpipe_nox_g_per_kwh`; the NLP's figure if it was not replayed), the figure controllers
+        are compared with (``float(stored_limit("whtc", 10))``)."""
+        r = self.replay_tailpipe_nox_g_per_kwh
+        return r if math.isfinite(r) else float(self.tailpipe_nox_g_per_kwh)
 
     def to_dict(self, dose: bool = True) -> dict[str, Any]:
         """JSON-friendly record (``dose``: with the dose trajectory, rounded to 1e-7 g/s)."""
@@ -172,13 +191,13 @@ def make_env(cycle: str | os.PathLike | ExhaustTrace = "whtc", env_kwargs: Mappi
 
 
 def replay(cycle: str | os.PathLike | ExhaustTrace, dose_g_s: Sequence[float] | np.ndarray,
-           env_kwargs: Mapping[str, Any] | None = None, record: bool = False) -> dict[str, Any]:
+           env_kwargs: Mapping[str, Any] | None = None, record: bool = False, seed: int = 0) -> dict[str, Any]:
     """Run ``dose_g_s`` (one AdBlue rate [g/s] per step of the cycle) open loop through the environment (no sensor
-    noise) and return its ``episode_kpis``; with ``record`` also the per-step arrays ``tailpipe_nox_ppm``,
-    ``tailpipe_nh3_ppm`` and ``nh3_coverage`` (steps x cells). ``ValueError`` if the dose has the wrong length or a
-    non-finite entry."""
+    noise; the episode of ``reset(seed=seed)``) and return its ``episode_kpis``; with ``record`` also the per-step
+    arrays ``tailpipe_nox_ppm``, ``tailpipe_nh3_ppm`` and ``nh3_coverage`` (steps x cells). ``ValueError`` if the
+    dose has the wrong length or a non-finite entry."""
     env = make_env(cycle, env_kwargs)
-    env.reset(seed=0)
+    env.reset(seed=_count("seed", seed, 0))
     n = env.trace.n_steps
     dose = np.asarray(dose_g_s, dtype=np.float64).ravel()
     if dose.size != n:

@@ -90,11 +90,11 @@ REDUCED_ITERATIONS = (600, 300)
 JIT_MIN_STEPS = 1000
 
 
-def _lookup_table_dose(env: Any) -> np.ndarray:
-    """The look-up table's dose trajectory [g/s] in ``env`` (reset and run to the end)."""
+def _lookup_table_dose(env: Any, seed: int = 0) -> np.ndarray:
+    """The look-up table's dose trajectory [g/s] in ``env`` (reset with ``seed`` and run to the end)."""
     from control.baselines import LookupTableDosing
 
-    obs, _ = env.reset(seed=0)
+    obs, _ = env.reset(seed=seed)
     lut = LookupTableDosing(max_rate_g_s=env.max_rate_g_s)
     lut.attach(env)
     dose = np.empty(env.trace.n_steps)
@@ -130,10 +130,12 @@ def _kpi_weights(env: Any, drive: np.ndarray) -> tuple[np.ndarray, np.ndarray, f
 
 
 # ------------------------------------------------------------------------------------------------------ the twin
-def _dose_linear_twin(catalyst: Any, dosing: Any) -> Any:
+def _dose_linear_twin(catalyst: Any, dosing: Any, packed: np.ndarray | None = None) -> Any:
     """:class:`scr_env.casadi_model._Plant` whose inlet is linear in the dose: the twin's own inlet at 1 g/s, times
     the dose. Inside [0, injector limit] that is the plant's inlet exactly; it drops the clamp whose kink at the
-    bounds stalls IPOPT (module docstring)."""
+    bounds stalls IPOPT (module docstring). ``packed``: the packed parameters of the episode's catalyst (the
+    environment's ``catalyst_params_array``: after ageing and randomisation), which replace those of
+    ``catalyst``."""
     import casadi as ca
 
     from scr_env.casadi_model import _Plant
@@ -143,7 +145,12 @@ def _dose_linear_twin(catalyst: Any, dosing: Any) -> Any:
             q, y_nh3_per_g_s, y_no, y_no2 = super().inlet(ca.vertcat(u[0], u[1], u[2], u[3], 1.0, u[5]))
             return q, y_nh3_per_g_s * u[4], y_no, y_no2
 
-    return _DoseLinearTwin(catalyst, dosing)
+    twin = _DoseLinearTwin(catalyst, dosing)
+    if packed is not None:
+        if len(packed) != len(twin.p):
+            raise ValueError(f"packed catalyst parameters: {len(packed)} values, the twin has {len(twin.p)}")
+        twin.p = [float(v) for v in packed]
+    return twin
 
 
 def _compiler() -> str | None:
@@ -195,7 +202,9 @@ class CycleOptimum:
     cycle : ``"whtc"``, ``"whsc"``, a CSV path or an :class:`~scr_env.cycles.ExhaustTrace` (the environment's
         ``cycle``); the environment's hot start unless ``env_kwargs`` says otherwise.
     env_kwargs : plant arguments of the environment (:data:`PLANT_ARGUMENTS`: ``catalyst``, ``dt`` (0.5 s),
-        ``ageing``, ``dosing``, ``cold_start``, ``initial_coverage``).
+        ``ageing``, ``age_h``, ``randomize``, ``dosing``, ``cold_start``, ``initial_coverage``).
+    seed : the reset seed of the episode whose plant is optimised (matters with ``randomize`` or an ``age_h``
+        range, which draw the episode's catalyst at reset); the replay uses it too.
     hold_steps : plant steps over which each dose is held (1: a dose per control step).
     peak_ppm : also bound the tailpipe NH3 of every step [ppm] (None: the mean slip only). With a peak bound the
         reduced-space warm start is skipped (it handles one constraint); IPOPT starts from the look-up table.
@@ -212,7 +221,7 @@ class CycleOptimum:
                  env_kwargs: Mapping[str, Any] | None = None, hold_steps: int = 1, peak_ppm: float | None = None,
                  jit: bool | None = None, max_iter: int = 3000, tol: float = 1e-8,
                  reduced_iterations: tuple[int, int] = REDUCED_ITERATIONS, print_level: int = 0,
-                 ipopt_options: Mapping[str, Any] | None = None) -> None:
+                 ipopt_options: Mapping[str, Any] | None = None, seed: int = 0) -> None:
         from scr_env.envs import core
         from scr_env.envs.config import O2_FRACTION
         from scr_env.physics import kernel as K
@@ -228,8 +237,9 @@ class CycleOptimum:
         self.ipopt_options = dict(ipopt_options or {})
         self.env_kwargs = _plant_kwargs(env_kwargs)
         self.cycle = cycle
+        self.seed = _count("seed", seed, 0)
         self._env = env = make_env(cycle, self.env_kwargs)
-        env.reset(seed=0)
+        env.reset(seed=self.seed)
         self.trace: ExhaustTrace = env.trace
         self.name = str(env.trace.name)
         self.dt = float(env.dt)
@@ -269,7 +279,7 @@ class CycleOptimum:
         from scr_env.envs.config import O2_FRACTION
 
         n, N, h = self.n_cells, self.n_steps, self.hold_steps
-        twin = _dose_linear_twin(self._env.config.effective_catalyst, self._env.config.dosing)
+        twin = _dose_linear_twin(self._env.config.effective_catalyst, self._env.config.dosing, self._cat[0])
         tho, thn = ca.SX.sym("theta", n), ca.SX.sym("theta_next", n)
         u, temps, d = ca.SX.sym("adblue_g_s"), ca.SX.sym("temperature_k", n), ca.SX.sym("drive", 4)
         g, y = twin.outputs([thn[j] for j in range(n)], [temps[j] for j in range(n)],
@@ -374,7 +384,7 @@ class CycleOptimum:
     def lookup_table_dose(self) -> np.ndarray:
         """The look-up table's dose trajectory [g/s] on this cycle (the first warm start)."""
         if self._lut_dose is None:
-            self._lut_dose = _lookup_table_dose(make_env(self.cycle, self.env_kwargs))
+            self._lut_dose = _lookup_table_dose(make_env(self.cycle, self.env_kwargs), self.seed)
         return self._lut_dose.copy()
 
     def per_step(self, doses: np.ndarray) -> np.ndarray:
@@ -565,7 +575,7 @@ class CycleOptimum:
             warm_start=origin,
             primal_dual=(x, np.asarray(sol["lam_g"]).ravel(), np.asarray(sol["lam_x"]).ravel()))
         if replay_dose:
-            res = replace(res, replay=_kpi_floats(replay(self.cycle, dose, self.env_kwargs)))
+            res = replace(res, replay=_kpi_floats(replay(self.cycle, dose, self.env_kwargs, seed=self.seed)))
         return res
 
 

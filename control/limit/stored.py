@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from control.limit.common import REFERENCE_BUDGET_PPM, LimitResult, _positive, gap_to_limit, make_env
+from control.limit.common import REFERENCE_BUDGET_PPM, LimitResult, _count, _positive, gap_to_limit, make_env
 from scr_env.cycles import ExhaustTrace
 
 #: the stored limit (package data, written by ``python -m experiments.limit --store``)
@@ -66,13 +66,14 @@ def _source_digest(module: Any) -> str:
 
 
 def plant_fingerprint(cycle: str | os.PathLike | ExhaustTrace = "whtc",
-                      env_kwargs: Mapping[str, Any] | None = None) -> dict[str, str]:
+                      env_kwargs: Mapping[str, Any] | None = None, seed: int = 0) -> dict[str, str]:
     """What a limit was solved for, as short hashes: ``catalyst`` (the packed parameters of the episode, by name),
     ``dosing`` (injector limit, urea decomposition), ``cycle`` (the drive rows and engine power of every step, dt),
     ``initial_state`` (coverages and temperatures after reset), ``chemistry`` (the code of
     :mod:`scr_env.physics.cell`, without comments and docstrings) and ``plant``, a hash of them all. Changes of the
-    kernel's integrator, thermal step or KPI code are not in it: :func:`check_stored_limit` replays the stored doses
-    through the current environment for those."""
+    kernel's integrator, thermal step or KPI code are not in it: ``tests/control/test_limit.py`` replays the
+    stored doses through the current environment for those. ``seed``: the reset seed of the episode (as
+    :class:`~control.limit.CycleOptimum`'s)."""
     from dataclasses import asdict
 
     from scr_env.envs.config import O2_FRACTION
@@ -80,7 +81,7 @@ def plant_fingerprint(cycle: str | os.PathLike | ExhaustTrace = "whtc",
     from scr_env.physics import cell
 
     env = make_env(cycle, env_kwargs)
-    env.reset(seed=0)
+    env.reset(seed=_count("seed", seed, 0))
     n = env.trace.n_steps
     parts = {
         "catalyst": _digest(dict(zip(PACKED_FIELDS, env.catalyst_params_array.tolist(), strict=True))),
@@ -105,7 +106,7 @@ def stored_limit_path() -> Path:
     return Path(str(resources.files("control").joinpath(STORED_LIMIT_RESOURCE)))
 
 
-_STORED_CACHE: dict[tuple[str, int], dict[str, Any]] = {}
+_STORED_CACHE: dict[tuple[str, int, int, int], dict[str, Any]] = {}
 _FINGERPRINT_CACHE: dict[str, dict[str, str]] = {}
 
 
@@ -118,7 +119,7 @@ def stored_limits(path: str | os.PathLike | None = None) -> dict[str, Any]:
         st = p.stat()
     except FileNotFoundError:
         raise FileNotFoundError(f"no stored limit at {p}: run `python -m experiments.limit --store`") from None
-    key = (str(p.resolve()), st.st_mtime_ns)
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size, st.st_ino)
     if key not in _STORED_CACHE:
         try:
             doc = json.loads(p.read_text(encoding="utf-8"))
@@ -149,6 +150,9 @@ def stored_limit(cycle: str = "whtc", budget_ppm: float = REFERENCE_BUDGET_PPM, 
         raise ValueError(f"cycle {cycle!r} has no stored limit; stored: {', '.join(sorted(doc['cycles']))}")
     name = cycle.strip().lower()
     entry = doc["cycles"][name]
+    where = path if path is not None else stored_limit_path()
+    if not isinstance(entry, dict) or not isinstance(entry.get("budgets", {}), dict):
+        raise ValueError(f"{where}: the entry of {name} is not a limit entry (a mapping with 'budgets')")  # noqa: TRY004
     key = _budget_key(budget_ppm)
     if key not in entry.get("budgets", {}):
         raise ValueError(f"budget_ppm {budget_ppm!r}: no stored limit for {name} at that budget; stored: "
@@ -163,7 +167,11 @@ def stored_limit(cycle: str = "whtc", budget_ppm: float = REFERENCE_BUDGET_PPM, 
             warnings.warn(f"the stored limit of {name} was solved for another plant (changed: "
                           f"{', '.join(changed) or 'plant'}); re-solve with `python -m experiments.limit --store`",
                           StaleLimitWarning, stacklevel=2)
-    return LimitResult.from_dict(name, entry["budgets"][key])
+    try:
+        return LimitResult.from_dict(name, entry["budgets"][key])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: the record of {name} at {key} ppm is not a limit record ({type(exc).__name__}: "
+                         f"{exc}); re-solve with `python -m experiments.limit --store`") from None
 
 
 def write_limit_document(doc: Mapping[str, Any], path: str | os.PathLike) -> Path:

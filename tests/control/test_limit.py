@@ -44,9 +44,17 @@ def test_objective_weights_are_the_environments_kpis(problem, segment):
     assert problem.engine_work_kwh == pytest.approx(kpis["engine_work_kwh"], rel=1e-12)
 
 
-def test_the_twins_implicit_step_holds_on_the_kernels_trajectory(problem):
+@pytest.mark.parametrize("plant", [None, ({"age_h": 8.0}, 0), ({"randomize": 0.2}, 101)],
+                         ids=["fresh", "aged_8h", "randomised_seed_101"])
+def test_the_twins_implicit_step_holds_on_the_kernels_trajectory(problem, segment, plant):
     """The NLP's equality constraints are satisfied by the plant's own trajectory (to the kernel's Newton
-    tolerance), and its outputs are the plant's."""
+    tolerance), and its outputs are the plant's: for the fresh catalyst, an aged one and the catalyst an episode
+    draws at reset with domain randomisation (the RL benchmark's Aged and Randomised tasks)."""
+    if plant is not None:
+        problem = L.CycleOptimum(segment, env_kwargs=plant[0], seed=plant[1], jit=False)
+        fresh = L.make_env(segment)
+        fresh.reset(seed=0)
+        assert not np.array_equal(problem._cat[0], fresh.catalyst_params_array)
     dose = problem.lookup_table_dose()
     cov, nox, nh3 = problem.simulate(dose)
     x = np.r_[cov.ravel(), problem.held(dose)]
@@ -112,8 +120,11 @@ def test_primal_dual_warm_start_and_peak_bound(segment, front):
 
 
 def test_bad_arguments_are_refused(segment, problem):
-    with pytest.raises(ValueError, match="randomize"):
-        L.CycleOptimum(segment, env_kwargs={"randomize": 0.2})
+    for bad in ("sensor_noise", "actuator", "action_mode"):
+        with pytest.raises(ValueError, match=bad):
+            L.CycleOptimum(segment, env_kwargs={bad: False})
+    with pytest.raises(ValueError, match="seed"):
+        L.CycleOptimum(segment, seed=-1)
     with pytest.raises(ValueError, match="hold_steps"):
         L.CycleOptimum(segment, hold_steps=0)
     with pytest.raises(ValueError, match="budget_ppm"):
@@ -174,26 +185,63 @@ def test_stored_limit_matches_the_current_plant():
             assert kpis["mean_nh3_slip_ppm"] == pytest.approx(r.replay_mean_nh3_slip_ppm, rel=1e-6, abs=1e-9)
 
 
-def test_stored_limit_errors_and_stale_warning(tmp_path):
-    with pytest.raises(ValueError, match="cycle 'nedc'"):
-        L.stored_limit("nedc")
-    with pytest.raises(ValueError, match="budget_ppm 3"):
-        L.stored_limit("whtc", 3)
-    with pytest.raises(FileNotFoundError, match="experiments.limit --store"):
-        L.stored_limits(tmp_path / "missing.json")
-    bad = tmp_path / "bad.json"
-    bad.write_text("{not json", encoding="utf-8")
-    with pytest.raises(ValueError, match="bad.json"):
-        L.stored_limits(bad)
-    doc = L.stored_limits()
-    doc["cycles"]["whtc"]["fingerprint"]["chemistry"] = "0" * 16
-    stale = L.write_limit_document(doc, tmp_path / "stale.json")
-    with pytest.warns(L.StaleLimitWarning, match="chemistry"):
-        L.stored_limit("whtc", 10, path=stale)
+def _limit_document(tmp_path, result, fingerprint, name="limit.json"):
+    doc = {"command": "python -m experiments.limit --segment", "cycles": {"whtc": {
+        "fingerprint": fingerprint, "budgets": {"5": result.to_dict()}}}}
+    return L.write_limit_document(doc, tmp_path / name)
+
+
+def test_stored_limit_reads_a_document_and_warns_when_the_plant_changed(tmp_path, front):
+    """stored_limit answers from the file (never re-solves), compares the stored plant fingerprint with the current
+    plant's and warns (StaleLimitWarning, naming what changed) when they differ."""
+    now = L.plant_fingerprint("whtc")
+    path = _limit_document(tmp_path, front[5.0], now)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        L.stored_limit("whtc", 10, path=stale, check_plant=False)
-    assert json.loads(stale.read_text(encoding="utf-8"))["cycles"]["whtc"]["fingerprint"]["chemistry"] == "0" * 16
+        rec = L.stored_limit("whtc", 5, path=path)
+    assert rec.replay_tailpipe_nox_g_per_kwh == front[5.0].replay_tailpipe_nox_g_per_kwh
+    np.testing.assert_allclose(rec.dose_g_s, front[5.0].dose_g_s, atol=1e-7)
+    # the record as control_benchmark reads it: by key, or as one number (the replayed NOx)
+    assert rec["tailpipe_nox_g_per_kwh"] == front[5.0].tailpipe_nox_g_per_kwh
+    assert float(rec) == rec["replay_tailpipe_nox_g_per_kwh"] == rec.replay_tailpipe_nox_g_per_kwh
+    with pytest.raises(KeyError, match="not an entry"):
+        rec["nox"]
+    for part in ("chemistry", "catalyst"):
+        stale = _limit_document(tmp_path, front[5.0], {**now, part: "0" * 16}, f"stale_{part}.json")
+        with pytest.warns(L.StaleLimitWarning, match=part):
+            L.stored_limit("whtc", 5, path=stale)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            L.stored_limit("whtc", 5, path=stale, check_plant=False)
+    aged = _limit_document(tmp_path, front[5.0], L.plant_fingerprint("whtc", {"age_h": 8.0}), "aged.json")
+    with pytest.warns(L.StaleLimitWarning, match="catalyst"):
+        L.stored_limit("whtc", 5, path=aged)
+
+
+def test_stored_limit_errors_name_the_cycle_budget_or_file(tmp_path, front):
+    path = _limit_document(tmp_path, front[5.0], {})
+    with pytest.raises(ValueError, match="cycle 'nedc'.*stored: whtc"):
+        L.stored_limit("nedc", path=path, check_plant=False)
+    with pytest.raises(ValueError, match="budget_ppm 3.*stored: 5 ppm"):
+        L.stored_limit("whtc", 3, path=path, check_plant=False)
+    with pytest.raises(ValueError, match="budget_ppm"):
+        L.stored_limit("whtc", -1, path=path, check_plant=False)
+    with pytest.raises(FileNotFoundError, match="experiments.limit --store"):
+        L.stored_limits(tmp_path / "missing.json")
+    for name, text in (("bad.json", "{not json"), ("list.json", "[1, 2]"), ("nocycles.json", '{"budgets": {}}'),
+                       ("binary.json", b"\xff\xfe\x00")):
+        bad = tmp_path / name
+        bad.write_bytes(text if isinstance(text, bytes) else text.encode())
+        with pytest.raises(ValueError, match=name.replace(".", r"\.")):
+            L.stored_limit("whtc", 10, path=bad)
+    broken = tmp_path / "broken.json"
+    broken.write_text(json.dumps({"cycles": {"whtc": {"budgets": {"10": {"mean_nh3_slip_ppm": 1.0}}}}}),
+                      encoding="utf-8")
+    with pytest.raises(ValueError, match="broken.json: the record of whtc at 10 ppm is not a limit record"):
+        L.stored_limit("whtc", 10, path=broken, check_plant=False)
+    broken.write_text(json.dumps({"cycles": {"whtc": ["not", "an", "entry"]}}), encoding="utf-8")
+    with pytest.raises(ValueError, match="broken.json: the entry of whtc"):
+        L.stored_limit("whtc", 10, path=broken, check_plant=False)
 
 
 def test_result_record_round_trip(front):
