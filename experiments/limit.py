@@ -1,7 +1,7 @@
 """The limit of the dosing task: the clairvoyant whole-cycle optimum and its NOx-against-slip Pareto front (#19).
 
     python -m experiments.limit [--cycles whtc whsc] [--budgets 1 2 5 10 20] [--json PATH]
-                                [--benchmark PATH] [--hold-steps 1] [--segment START STEPS] [--store]
+                                [--benchmark PATH] [--hold-steps 1] [--segment START STEPS] [--store | --stored]
 
 For each cycle (the hot WHTC and WHSC at dt = 0.5 s, started as the environment starts an episode, as
 ``experiments.control_benchmark`` runs them) and each mean-slip budget [ppm], the dosing that minimises the tailpipe
@@ -15,7 +15,9 @@ environment (``replay_*``), the dose trajectory, the solve time (wall and CPU) a
 against the limit (none may be below it within the budget; the run says which are). Without it the figure shows
 the front alone. ``--segment START STEPS``: only those steps of each cycle (a short problem, for tests).
 ``--store``: also write the result as the stored limit of the package (``control/data/limit.json``, read by
-:func:`control.limit.stored_limit`); only for the full default cycles.
+:func:`control.limit.stored_limit`; the cycles solved replace theirs); only at the default budgets and hold steps.
+``--stored``: solve nothing; read the stored limit (warning if the plant changed since) and draw the figure and the
+controllers of ``--benchmark`` against it.
 """
 from __future__ import annotations
 
@@ -37,6 +39,7 @@ from control.limit import (
     pareto_front,
     plant_fingerprint,
     replay,
+    stored_limit,
     stored_limit_path,
     stored_limits,
     write_limit_document,
@@ -119,7 +122,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--segment", type=int, nargs=2, default=None, metavar=("START", "STEPS"),
                     help="only these steps of each cycle (a short problem)")
     ap.add_argument("--store", action="store_true", help="also write the stored limit of the package")
+    ap.add_argument("--stored", action="store_true", help="solve nothing: the stored limit, figure and --benchmark")
     args = ap.parse_args(argv)
+    if args.stored and (args.store or args.segment is not None):
+        ap.error("--stored reads the package's limit: not with --store or --segment")
     if args.store and (args.segment is not None or args.hold_steps != 1 or not set(args.cycles) <= set(
             STORED_CYCLES) or sorted(args.budgets) != sorted(DEFAULT_BUDGETS_PPM)):
         ap.error("--store writes the package's limit: only with the stored cycles (whtc, whsc), the default budgets "
@@ -132,7 +138,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                            "benchmark": None if args.benchmark is None else str(args.benchmark), "cycles": {}}
     t0 = time.perf_counter()
     for cycle in args.cycles:
-        doc["cycles"][cycle] = solve_cycle(cycle, args)
+        if args.stored:
+            stored_limit(cycle)  # a clear error if it is not stored, a StaleLimitWarning if the plant changed
+            doc["cycles"][cycle] = stored_limits()["cycles"][cycle]
+            for key, r in sorted(doc["cycles"][cycle]["budgets"].items(), key=lambda kv: float(kv[0])):
+                print(f"{cycle} {key:>3s} ppm: {r['replay_tailpipe_nox_g_per_kwh']:.4f} g/kWh at "
+                      f"{r['replay_mean_nh3_slip_ppm']:.3f} ppm (stored, solved in {r['solve_time_s']:.0f} s)")
+        else:
+            doc["cycles"][cycle] = solve_cycle(cycle, args)
     doc["wall_time_s"] = time.perf_counter() - t0
     if benchmark is not None:
         placed = controllers_against_limit(benchmark, doc)

@@ -37,7 +37,25 @@ def test_limit_experiment_on_a_segment(tmp_path, monkeypatch):
     assert (run / "pareto_front.png").stat().st_size > 0 and (run / "limit.json").exists()
 
 
+    # --stored: no solve, the package's document (here the segment's, so the plant check warns: another cycle)
+    from control.limit import StaleLimitWarning, stored
+
+    package = tmp_path / "package_limit.json"
+    package.write_text(json.dumps(doc), encoding="utf-8")
+    monkeypatch.setattr(stored, "stored_limit_path", lambda: package)
+    again = tmp_path / "again.json"
+    with pytest.warns(StaleLimitWarning, match="cycle"):
+        redo = limit.main(["--stored", "--cycles", "whtc", "--benchmark", str(bench), "--json", str(again)])
+    assert redo["cycles"]["whtc"]["budgets"] == json.loads(json.dumps(budgets))
+    assert redo["controllers_against_limit"]["whtc"]["impossible"]["below_limit"]
+    assert json.loads(again.read_text(encoding="utf-8"))["cycles"]["whtc"]["budgets"].keys() == {"5", "10"}
+
+
 def test_store_only_for_the_default_problem(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(SystemExit):
         limit.main(["--segment", "0", "100", "--store"])
+    with pytest.raises(SystemExit):
+        limit.main(["--budgets", "10", "--store"])
+    with pytest.raises(SystemExit):
+        limit.main(["--stored", "--store"])
