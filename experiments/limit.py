@@ -2,6 +2,7 @@
 
     python -m experiments.limit [--cycles whtc whsc] [--budgets 1 2 5 10 20] [--json PATH]
                                 [--benchmark PATH] [--hold-steps 1] [--segment START STEPS] [--store | --stored]
+                                [--age-h H] [--randomize SPREAD --seed SEED]
 
 For each cycle (the hot WHTC and WHSC at dt = 0.5 s, started as the environment starts an episode, as
 ``experiments.control_benchmark`` runs them) and each mean-slip budget [ppm], the dosing that minimises the tailpipe
@@ -16,8 +17,10 @@ against the limit (none may be below it within the budget; the run says which ar
 the front alone. ``--segment START STEPS``: only those steps of each cycle (a short problem, for tests).
 ``--store``: also write the result as the stored limit of the package (``control/data/limit.json``, read by
 :func:`control.limit.stored_limit`; the cycles solved replace theirs); only at the default budgets and hold steps.
-``--stored``: solve nothing; read the stored limit (warning if the plant changed since) and draw the figure and the
-controllers of ``--benchmark`` against it.
+``--age-h``/``--randomize``/``--seed``: another plant (an aged catalyst, the catalyst an episode draws at
+``reset(seed)``), stored as its own entry (``control.limit.plant_entry_name``). ``--stored``: solve nothing; read
+the stored limit (warning if the plant changed since) and draw the figure and the controllers of ``--benchmark``
+against it.
 """
 from __future__ import annotations
 
@@ -37,6 +40,7 @@ from control.limit import (
     cycle_segment,
     pareto_figure,
     pareto_front,
+    plant_entry_name,
     plant_fingerprint,
     replay,
     stored_limit,
@@ -74,7 +78,7 @@ def _stored_document(doc: dict[str, Any]) -> dict[str, Any]:
         stored = stored_limits()
     except (FileNotFoundError, ValueError):
         stored = {"cycles": {}}
-    cycles = {c: e for c, e in stored["cycles"].items() if c in STORED_CYCLES and c not in doc["cycles"]}
+    cycles = {c: e for c, e in stored["cycles"].items() if c not in doc["cycles"]}
     cycles.update({c: {**e, "command": doc["command"], "git_commit": doc["git_commit"], "created": doc["created"]}
                    for c, e in doc["cycles"].items()})
     return {**{k: v for k, v in doc.items() if k not in ("cycles", "benchmark", "controllers_against_limit")},
@@ -82,11 +86,16 @@ def _stored_document(doc: dict[str, Any]) -> dict[str, Any]:
                 cycles.items()))}
 
 
+def _plant(args: argparse.Namespace) -> dict[str, Any]:
+    """The plant arguments of the run (none: the environment's default catalyst)."""
+    return {k: v for k, v in (("age_h", args.age_h), ("randomize", args.randomize)) if v is not None}
+
+
 def solve_cycle(cycle: str, args: argparse.Namespace) -> dict[str, Any]:
     """The Pareto front of one cycle as a JSON record."""
     t0 = time.perf_counter()
     source = cycle if args.segment is None else cycle_segment(cycle, *args.segment)
-    problem = CycleOptimum(source, hold_steps=args.hold_steps)
+    problem = CycleOptimum(source, hold_steps=args.hold_steps, env_kwargs=_plant(args), seed=args.seed)
     setup_s = time.perf_counter() - t0
     problem.prepare()
     build_s = time.perf_counter() - t0 - setup_s
@@ -101,10 +110,11 @@ def solve_cycle(cycle: str, args: argparse.Namespace) -> dict[str, Any]:
               flush=True)
 
     front = pareto_front(problem, args.budgets, progress=progress)
-    lut = replay(source, problem.lookup_table_dose())
-    return {"name": problem.name, "n_steps": problem.n_steps, "dt": problem.dt, "hold_steps": problem.hold_steps,
+    lut = replay(source, problem.lookup_table_dose(), _plant(args), seed=args.seed)
+    return {"name": problem.name, "cycle": cycle, "env_kwargs": _plant(args), "seed": args.seed,
+            "n_steps": problem.n_steps, "dt": problem.dt, "hold_steps": problem.hold_steps,
             "engine_work_kwh": problem.engine_work_kwh, "setup_time_s": setup_s, "build_time_s": build_s,
-            "compiled": problem.jit, "fingerprint": plant_fingerprint(source),
+            "compiled": problem.jit, "fingerprint": plant_fingerprint(source, _plant(args), args.seed),
             "lookup_table": {k: v for k, v in lut.items() if isinstance(v, float)},
             "budgets": {format(b, "g"): r.to_dict() for b, r in front.items()},
             "wall_time_s": time.perf_counter() - t0}
@@ -121,15 +131,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--hold-steps", type=int, default=1, help="plant steps per dose (default 1: every 0.5 s)")
     ap.add_argument("--segment", type=int, nargs=2, default=None, metavar=("START", "STEPS"),
                     help="only these steps of each cycle (a short problem)")
+    ap.add_argument("--age-h", type=float, default=None, help="catalyst age [h] (default: fresh)")
+    ap.add_argument("--randomize", type=float, default=None, help="catalyst spread (with --seed: an episode's)")
+    ap.add_argument("--seed", type=int, default=0, help="reset seed of the episode (default 0)")
     ap.add_argument("--store", action="store_true", help="also write the stored limit of the package")
     ap.add_argument("--stored", action="store_true", help="solve nothing: the stored limit, figure and --benchmark")
     args = ap.parse_args(argv)
     if args.stored and (args.store or args.segment is not None):
         ap.error("--stored reads the package's limit: not with --store or --segment")
+    default_plant = not _plant(args) and args.seed == 0
     if args.store and (args.segment is not None or args.hold_steps != 1 or not set(args.cycles) <= set(
-            STORED_CYCLES) or sorted(args.budgets) != sorted(DEFAULT_BUDGETS_PPM)):
-        ap.error("--store writes the package's limit: only with the stored cycles (whtc, whsc), the default budgets "
-                 "and hold steps")
+            STORED_CYCLES) or (default_plant and sorted(args.budgets) != sorted(DEFAULT_BUDGETS_PPM))):
+        ap.error("--store writes the package's limit: only with the stored cycles (whtc, whsc), the default hold "
+                 "steps and, for the default plant, the default budgets")
     benchmark = _read_json(args.benchmark, "--benchmark") if args.benchmark is not None else None
     out = run_folder("limit", json_path=args.json)
     command = "python -m experiments.limit " + shlex.join(sys.argv[1:] if argv is None else argv)
@@ -138,14 +152,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                            "benchmark": None if args.benchmark is None else str(args.benchmark), "cycles": {}}
     t0 = time.perf_counter()
     for cycle in args.cycles:
-        if args.stored:
-            stored_limit(cycle)  # a clear error if it is not stored, a StaleLimitWarning if the plant changed
-            doc["cycles"][cycle] = stored_limits()["cycles"][cycle]
-            for key, r in sorted(doc["cycles"][cycle]["budgets"].items(), key=lambda kv: float(kv[0])):
-                print(f"{cycle} {key:>3s} ppm: {r['replay_tailpipe_nox_g_per_kwh']:.4f} g/kWh at "
+        name = plant_entry_name(cycle, _plant(args), args.seed)
+        if args.stored:  # a clear error if it is not stored, a StaleLimitWarning if the plant changed
+            name = stored_limit(cycle, 10.0, env_kwargs=_plant(args), seed=args.seed).cycle
+            doc["cycles"][name] = stored_limits()["cycles"][name]
+            for key, r in sorted(doc["cycles"][name]["budgets"].items(), key=lambda kv: float(kv[0])):
+                print(f"{name} {key:>3s} ppm: {r['replay_tailpipe_nox_g_per_kwh']:.4f} g/kWh at "
                       f"{r['replay_mean_nh3_slip_ppm']:.3f} ppm (stored, solved in {r['solve_time_s']:.0f} s)")
         else:
-            doc["cycles"][cycle] = solve_cycle(cycle, args)
+            doc["cycles"][name] = solve_cycle(cycle, args)
     doc["wall_time_s"] = time.perf_counter() - t0
     if benchmark is not None:
         placed = controllers_against_limit(benchmark, doc)

@@ -135,22 +135,55 @@ def _budget_key(budget_ppm: float) -> str:
     return format(_positive("budget_ppm", budget_ppm), "g")
 
 
+def plant_entry_name(cycle: str, env_kwargs: Mapping[str, Any] | None = None, seed: int = 0) -> str:
+    """The name of a plant's entry in the limit document: the cycle (``"whtc"``) for the environment's default
+    plant, else e.g. ``"whtc@age_h=4"`` or ``"whtc@randomize=0.2,seed=101"`` (arguments in alphabetical order, the
+    seed when it is not 0)."""
+    parts = [f"{k}={format(v, 'g') if isinstance(v, float) else v}" for k, v in sorted((env_kwargs or {}).items())]
+    parts += [f"seed={seed}"] if seed else []
+    return str(cycle) + ("@" + ",".join(parts) if parts else "")
+
+
+def _find_entry(doc: Mapping[str, Any], cycle: Any, env_kwargs: Mapping[str, Any] | None, seed: int,
+                where: Any) -> tuple[str, Any]:
+    """(name, entry) of the plant asked for: by name, or for other plant arguments by plant fingerprint."""
+    if not isinstance(cycle, str):
+        raise ValueError(f"cycle must be a cycle name such as 'whtc', got {cycle!r}")  # noqa: TRY004
+    name = cycle.strip().lower()
+    if env_kwargs or seed:
+        want = plant_fingerprint(name, env_kwargs, seed)["plant"]
+        found = [(n, e) for n, e in doc["cycles"].items() if isinstance(e, dict)
+                 and (e.get("fingerprint") or {}).get("plant") == want]
+        if not found:
+            raise ValueError(f"no stored limit for the plant {plant_entry_name(name, env_kwargs, seed)} (cycle, "
+                             f"env_kwargs, seed); stored in {where}: {', '.join(sorted(doc['cycles']))}. Solve it: "
+                             f"CycleOptimum({name!r}, env_kwargs={dict(env_kwargs or {})!r}, seed={seed}).solve(10)")
+        return found[0]
+    if name not in doc["cycles"]:
+        raise ValueError(f"cycle {cycle!r} has no stored limit; stored: {', '.join(sorted(doc['cycles']))}")
+    return name, doc["cycles"][name]
+
+
 def stored_limit(cycle: str = "whtc", budget_ppm: float = REFERENCE_BUDGET_PPM, *,
+                 env_kwargs: Mapping[str, Any] | None = None, seed: int = 0,
                  path: str | os.PathLike | None = None, check_plant: bool = True) -> LimitResult:
     """The stored clairvoyant optimum of a cycle at a mean-slip budget [ppm] (never re-solved).
 
-    ``cycle``: ``"whtc"`` or ``"whsc"`` (the hot cycles at 0.5 s, as :mod:`experiments.control_benchmark` runs
-    them); ``budget_ppm``: one of the stored budgets (1, 2, 5, 10, 20). ``check_plant``: compare the stored
-    :func:`plant_fingerprint` with the current plant's and warn (:class:`StaleLimitWarning`) if they differ.
-    ``ValueError`` naming the cycle or budget and listing the stored ones. Use ``.replay_tailpipe_nox_g_per_kwh``,
-    the environment's figure of the optimal dose, when comparing controllers.
+    ``cycle``: ``"whtc"`` or ``"whsc"`` (the hot cycles at 0.5 s with the environment's default catalyst, as
+    :mod:`experiments.control_benchmark` runs them), or the name of another stored plant
+    (:func:`plant_entry_name`); ``budget_ppm``: one of the stored budgets (1, 2, 5, 10, 20 for the two cycles).
+    ``env_kwargs``/``seed``: another plant of the cycle (plant arguments of :class:`CycleOptimum`, e.g.
+    ``{"age_h": 4.0}``, or ``{"randomize": 0.2}`` with the episode's reset ``seed``), found among the stored
+    entries by its :func:`plant_fingerprint`. ``check_plant``: compare the stored fingerprint with the current
+    plant's and warn (:class:`StaleLimitWarning`) if they differ. ``ValueError`` naming the cycle, plant, budget or
+    file, listing what is stored. ``float(result)`` (or ``.replay_tailpipe_nox_g_per_kwh``) is the environment's
+    NOx of the optimal dose, the figure controllers are compared with; ``result["tailpipe_nox_g_per_kwh"]`` the
+    NLP's.
     """
     doc = stored_limits(path)
-    if not isinstance(cycle, str) or cycle.strip().lower() not in doc["cycles"]:
-        raise ValueError(f"cycle {cycle!r} has no stored limit; stored: {', '.join(sorted(doc['cycles']))}")
-    name = cycle.strip().lower()
-    entry = doc["cycles"][name]
     where = path if path is not None else stored_limit_path()
+    seed = _count("seed", seed, 0)
+    name, entry = _find_entry(doc, cycle, env_kwargs, seed, where)
     if not isinstance(entry, dict) or not isinstance(entry.get("budgets", {}), dict):
         raise ValueError(f"{where}: the entry of {name} is not a limit entry (a mapping with 'budgets')")  # noqa: TRY004
     key = _budget_key(budget_ppm)
@@ -159,9 +192,11 @@ def stored_limit(cycle: str = "whtc", budget_ppm: float = REFERENCE_BUDGET_PPM, 
                          f"{', '.join(sorted(entry.get('budgets', {}), key=float))} ppm")
     if check_plant:
         stored = entry.get("fingerprint", {})
-        if name not in _FINGERPRINT_CACHE:
-            _FINGERPRINT_CACHE[name] = plant_fingerprint(name)
-        now = _FINGERPRINT_CACHE[name]
+        plant = (str(entry.get("cycle", name)), entry.get("env_kwargs") or {}, int(entry.get("seed", 0)))
+        cache_key = json.dumps(plant, sort_keys=True)
+        if cache_key not in _FINGERPRINT_CACHE:
+            _FINGERPRINT_CACHE[cache_key] = plant_fingerprint(*plant)
+        now = _FINGERPRINT_CACHE[cache_key]
         changed = sorted(k for k in now if k != "plant" and stored.get(k) != now[k])
         if changed or stored.get("plant") != now["plant"]:
             warnings.warn(f"the stored limit of {name} was solved for another plant (changed: "

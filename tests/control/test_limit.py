@@ -218,6 +218,32 @@ def test_stored_limit_reads_a_document_and_warns_when_the_plant_changed(tmp_path
         L.stored_limit("whtc", 5, path=aged)
 
 
+def test_stored_limit_of_another_plant_is_found_by_its_fingerprint(tmp_path, front):
+    """The RL benchmark's plants (an aged catalyst, the catalyst an episode draws at reset) are stored entries of
+    their own, found by the plant's fingerprint, never by a guessed name."""
+    assert L.plant_entry_name("whtc") == "whtc"
+    assert L.plant_entry_name("whtc", {"age_h": 4.0}) == "whtc@age_h=4"
+    assert L.plant_entry_name("whtc", {"randomize": 0.2}, 101) == "whtc@randomize=0.2,seed=101"
+    plants = {"whtc@age_h=8": ({"age_h": 8.0}, 0), "whtc@randomize=0.2,seed=101": ({"randomize": 0.2}, 101)}
+    doc = {"command": "python -m experiments.limit", "cycles": {"whtc": {
+        "fingerprint": L.plant_fingerprint("whtc"), "budgets": {"5": front[2.0].to_dict()}}}}
+    for name, (kw, seed) in plants.items():
+        doc["cycles"][name] = {"cycle": "whtc", "env_kwargs": kw, "seed": seed, "budgets": {"5": front[5.0].to_dict()},
+                               "fingerprint": L.plant_fingerprint("whtc", kw, seed)}
+    path = L.write_limit_document(doc, tmp_path / "plants.json")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name, (kw, seed) in plants.items():
+            rec = L.stored_limit("whtc", 5, env_kwargs=kw, seed=seed, path=path)
+            assert rec.cycle == name and float(rec) == front[5.0].replay_tailpipe_nox_g_per_kwh
+            assert L.stored_limit(name, 5, path=path).cycle == name
+        assert float(L.stored_limit("whtc", 5, path=path)) == front[2.0].replay_tailpipe_nox_g_per_kwh
+    with pytest.raises(ValueError, match="no stored limit for the plant whtc@age_h=4.*CycleOptimum"):
+        L.stored_limit("whtc", 5, env_kwargs={"age_h": 4.0}, path=path)
+    with pytest.raises(ValueError, match="no stored limit for the plant whtc@randomize=0.2,seed=102"):
+        L.stored_limit("whtc", 5, env_kwargs={"randomize": 0.2}, seed=102, path=path)
+
+
 def test_stored_limit_errors_name_the_cycle_budget_or_file(tmp_path, front):
     path = _limit_document(tmp_path, front[5.0], {})
     with pytest.raises(ValueError, match="cycle 'nedc'.*stored: whtc"):
