@@ -360,9 +360,9 @@ class CycleOptimum:
             return None
         folder = tempfile.mkdtemp(prefix="scr_limit_")
         # the compiled libraries live in ``folder`` until this problem is collected
-        weakref.finalize(self, shutil.rmtree, folder, True)
+        weakref.finalize(self, shutil.rmtree, folder, True)  # the folder goes with the problem (no cleanup by CasADi)
         here = os.getcwd()
-        opts = {"compiler": cc, "flags": ["-O1"], "directory": folder, "cleanup": True}
+        opts = {"compiler": cc, "flags": ["-O1"], "directory": folder, "cleanup": False}
         try:
             proto = ca.nlpsol("limit_nlp", "ipopt", self._nlp, {"print_time": False})
             os.chdir(folder)  # CasADi's code generation writes to the working directory
