@@ -171,17 +171,19 @@ def test_stored_limit_matches_the_current_plant():
     """Fails when the plant changed since the limit was stored (the phys stream's chemistry, the cycles, the
     kernel): re-solve with `python -m experiments.limit --store`."""
     doc = L.stored_limits()
-    for cycle in L.STORED_CYCLES:
-        stored = doc["cycles"][cycle]["fingerprint"]
-        now = L.plant_fingerprint(cycle)
+    for name, entry in doc["cycles"].items():  # the two cycles and any other plant stored (the RL tasks')
+        cycle, kw, seed = entry.get("cycle", name), entry.get("env_kwargs") or {}, entry.get("seed", 0)
+        stored = entry["fingerprint"]
+        now = L.plant_fingerprint(cycle, kw, seed)
         changed = [k for k in now if stored.get(k) != now[k]]
-        assert not changed, (f"the stored limit of {cycle} was solved for another plant ({', '.join(changed)} "
+        assert not changed, (f"the stored limit of {name} was solved for another plant ({', '.join(changed)} "
                              "changed): re-solve with `python -m experiments.limit --store`")
-        for key in doc["cycles"][cycle]["budgets"]:
-            r = L.stored_limit(cycle, float(key), check_plant=False)
-            kpis = L.replay(cycle, r.dose_g_s)
+        for key in entry["budgets"]:
+            r = L.stored_limit(name, float(key), check_plant=False)
+            assert r.replay_error < 0.01 and r.replay_mean_nh3_slip_ppm <= float(key) * 1.01
+            kpis = L.replay(cycle, r.dose_g_s, kw, seed=seed)
             assert kpis["tailpipe_nox_g_per_kwh"] == pytest.approx(r.replay_tailpipe_nox_g_per_kwh, rel=1e-6), (
-                f"{cycle}@{key} ppm: the stored dose no longer gives the stored NOx: re-solve the limit")
+                f"{name}@{key} ppm: the stored dose no longer gives the stored NOx: re-solve the limit")
             assert kpis["mean_nh3_slip_ppm"] == pytest.approx(r.replay_mean_nh3_slip_ppm, rel=1e-6, abs=1e-9)
 
 
