@@ -32,7 +32,8 @@ The optimal-control problem (:class:`CycleOptimum`)
       functions compiled to C when a C compiler is available (``jit``), else in CasADi's virtual machine (several
       times slower).
 
-Why a warm start in two stages (measured on the hot WHSC and a 600 s segment of the hot WHTC, under load)
+Why a warm start in two stages (measured on the hot WHSC and a 600 s segment of the hot WHTC, under load, on the
+plant before its NO2 chemistry; on the new plant every budget of both cycles converges, docs/pending/limit.md)
     IPOPT on the multiple-shooting NLP converges slowly from the look-up table's trajectory: 616 iterations on the
     WHTC, more than 1000 on the WHSC, with its inertia correction active most of the time (the problem is not
     convex: the dose enters bilinearly with the coverage, and the coverage of hot downstream cells sits a few 1e-7
