@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.store:  # the cycles solved replace theirs in the stored document; the others are kept
         stored = _stored_document(doc)
         path = write_limit_document(stored, stored_limit_path())
-        print(f"stored the limit of {', '.join(args.cycles)} in {path}")
+        print(f"stored the limit of {', '.join(doc['cycles'])} in {path}")
     write_json(out / "command.json", {"command": doc["command"]})
     print(f"wrote {out} in {doc['wall_time_s']:.0f} s")
     return doc
