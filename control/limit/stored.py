@@ -256,7 +256,7 @@ def pareto_figure(limit: Mapping[str, Any], path: str | os.PathLike,
 
     plt = pyplot()
     cycles = list((limit.get("cycles") or {}).keys())
-    fig, axes = plt.subplots(1, max(len(cycles), 1), figsize=(6.2 * max(len(cycles), 1), 4.8), squeeze=False)
+    fig, axes = plt.subplots(1, max(len(cycles), 1), figsize=(5.6 * max(len(cycles), 1) + 2.6, 4.8), squeeze=False)
     placed = controllers_against_limit(benchmark, limit) if benchmark else {}
     for ax, cycle in zip(axes[0], cycles, strict=False):
         recs = sorted(limit["cycles"][cycle].get("budgets", {}).values(), key=lambda r: r["budget_ppm"])
@@ -277,7 +277,8 @@ def pareto_figure(limit: Mapping[str, Any], path: str | os.PathLike,
         ax.set_xlabel("mean NH3 slip [ppm]")
         ax.set_ylabel("tailpipe NOx [g/kWh]")
         ax.set_title(f"hot {cycle.upper()}")
-        ax.legend(fontsize=7, loc="upper right")
+        if ax is axes[0][len(cycles) - 1]:  # one legend, beside the last panel (it hides no controller)
+            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110)
