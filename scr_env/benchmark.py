@@ -5,10 +5,11 @@ Score of one evaluation episode (a condition and reset seed of the task's protoc
 
 * **anchors** (stored per episode in :data:`ANCHORS_PATH`, made by ``python -m experiments.rl_anchors``; never
   re-solved at evaluation): ``x_lut``, the look-up table (:class:`control.baselines.LookupTableDosing`) on the same
-  episode, and ``x_ref``, the reference on the same episode. The reference is meant to be the clairvoyant optimum
-  at the 10 ppm slip budget solved for the episode's own plant (``control.limit``, being built); until it lands it is
-  the oracle NMPC (:func:`control.factory.oracle_mpc`: the episode's own catalyst, privileged state, cycle preview),
-  and the anchors file and every result say which (``reference_kind``);
+  episode, and ``x_ref``, the reference on the same episode: the clairvoyant optimum at the 10 ppm mean-slip budget
+  solved for the episode's own plant (``control.limit.stored_limit``; the physical limit of the task, so a score of
+  100 is out of reach and the scale does not move when a better controller appears). The anchors file and every
+  result say which reference was used (``reference_kind``; ``experiments.rl_anchors --reference oracle`` makes
+  oracle-NMPC anchors instead), and each stored episode also carries the oracle NMPC's KPIs for information;
 * **raw score** ``100 (x_lut - x) / (x_lut - x_ref)``: 0 for the look-up table, 100 for the reference, more than
   100 for a policy that beats the reference; the anchors are defined on these raw figures, before any penalty, so
   they are 0 and 100 whatever their own slip (their slip is stored beside them);
