@@ -9,6 +9,8 @@ at load steps, a full store slips at the next heat-up. The knob per controller (
 * ``identified`` (grey-box NMPC, no preview): the terminal value of stored NH3 [g AdBlue equivalent per mol];
 * ``identified_preview`` (the same NMPC with the cycle preview of the engine-out disturbances): the same knob;
 * ``identified_nh3`` (``identified_preview`` whose EKF also reads a tailpipe NH3 sensor): the same knob;
+* ``lookup_table`` (the industrial baseline, :class:`control.baselines.LookupTableDosing`): the window level
+  ``anr_scale`` of its ANR map;
 * ``oracle`` (first-principles NMPC with the cycle preview): the *safe slip* [ppm] that sets its safe coverage,
   the coverage whose desorption at the hottest temperature of the next 120 s gives that slip (terminal penalty
   above it; the storage value stays at its 200 g/mol).
@@ -29,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from control.baselines import LookupTableDosing
 from control.factory import IDENT_EXCITATION, IDENT_SEEDS, greybox_record, identified_mpc, oracle_mpc
 from experiments._runs import run_folder, save_results
 from experiments.sweep import add_arguments, from_args, run_sweep
@@ -37,7 +40,8 @@ from experiments.sweep import add_arguments, from_args, run_sweep
 KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "identified_preview": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "identified_nh3": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
-         "oracle": ("safe_slip_ppm", (20.0, 50.0, 100.0, 200.0))}
+         "oracle": ("safe_slip_ppm", (20.0, 50.0, 100.0, 200.0)),
+         "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
 DEFAULT_SEEDS = (5, 6)
 SLIP_TARGET_PPM = 8.0
 
@@ -52,6 +56,8 @@ def _controller(kind: str, value: float, model: Any) -> Any:
         return identified_mpc(model, storage_value_g_per_mol=value, preview=True, nh3_sensor=True)
     if kind == "oracle":
         return oracle_mpc(safe_slip_ppm=value)
+    if kind == "lookup_table":
+        return LookupTableDosing(anr_scale=value)
     raise ValueError(f"controller must be one of {sorted(KNOBS)}, got {kind!r}")
 
 
@@ -125,7 +131,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         doc["chosen"][c] = res
         print(f"\n{c}: {KNOBS[c][0]} -> mean tailpipe NOx [g/kWh], worst mean slip [ppm], solver failures")
         for t in res["table"]:
-            print(f"  {t['value']:7.1f}  {t['mean_tailpipe_nox_g_per_kwh']:.3f}  "
+            print(f"  {t['value']:7.4g}  {t['mean_tailpipe_nox_g_per_kwh']:.3f}  "
                   f"{t['max_mean_nh3_slip_ppm']:6.2f}  {t['solver_failures']:.0f}")
         print(f"  chosen: {res['value']}")
     doc["wall_time_s"] = time.perf_counter() - t0
