@@ -799,8 +799,10 @@ class RecursivePEM(BaseEstimator):
         n_updates = max(int(self.n_updates_), 1)
         if self.n_rejected_ > WARN_REJECTED_FRACTION * n_updates:
             warnings.warn(f"RecursivePEM: {self.n_rejected_} of {n_updates} parameter updates were rejected by the "
-                          "projection onto the model set (the estimate barely left its start); try normalize=True, "
-                          "alpha='auto' and init='auto', or a smaller stability_margin", RuntimeWarning, stacklevel=3)
+                          "projection onto the model set DM (each would have made the model's linearisation at the "
+                          "current state and input less stable than stability_margin allows), so the estimate moved "
+                          "little from its start; try normalize=True, alpha='auto' and init='auto' (AUTO_SETTINGS), "
+                          "or a smaller stability_margin", RuntimeWarning, stacklevel=3)
         # the recursion's own simulation (the model state it propagates) on the state bound: counted by the kernel,
         # so this check costs nothing; a fit that scored its passes also checked the kept model's free run
         n_seen = max(int(self.n_samples_seen_), 1)

@@ -10,8 +10,10 @@ never any validation data):
 
 1. **order and output function**, with linear dynamics (``total_degree`` = the smallest degree of ``degrees``):
    every ``n_states`` of ``orders`` with every output function of ``outputs``;
-2. **polynomial degree**: the ``n_finalists`` best (order, output) pairs of stage 1 with every larger degree of
-   ``degrees`` (structures of more than ``max_terms`` terms per output are skipped and listed as such).
+2. **polynomial degree**: the ``n_finalists`` orders with the best hold-out FIT in stage 1, each with its simplest
+   output function among those within ``tolerance`` of that order's best (plus the identity output at the best
+   order), with every larger degree of ``degrees`` (structures of more than ``max_terms`` terms per output are
+   skipped and listed as such).
 
 Among the structures whose hold-out FIT is within ``tolerance`` FIT points of the best, the one with the fewest
 parameters is chosen (the hold-out of a short record is noisy; a simpler model that scores as well generalises at
@@ -22,8 +24,8 @@ Cost: stages 1 and 2 are *screening* fits: on records longer than ``screen_sampl
 ``screen_samples`` samples, and at most ``screen_passes`` passes. The chosen structure is then fitted once more
 with the full settings on the whole estimation record (``best_estimator_``), which with ``refit=True`` (in
 :data:`AUTO_SETTINGS`) also re-runs its chosen recipe over the hold-out: the hold-out served to choose, and the
-final model uses every sample. With the default grid (3 orders x 4 output functions, then 2 degrees x 2 finalists:
-16 screening fits and one final fit) the search costs about 15 single fits on records up to ``screen_samples``
+final model uses every sample. With the default grid (3 orders x 4 output functions, then 2 degrees x 2 or 3 finalists:
+16 to 18 screening fits and one final fit) the search costs about 15 single fits on records up to ``screen_samples``
 samples; ``results_`` lists every fit with its time.
 """
 from __future__ import annotations
@@ -70,7 +72,7 @@ class StructureSearch(BaseEstimator):
     outputs : sequence of str
         Static output functions to try (names of :data:`~ident.rpem.OUTPUT_FUNCTIONS`).
     n_finalists : int
-        (order, output) pairs of stage 1 that go on to the larger degrees.
+        Orders of stage 1 (each with one output function) that go on to the larger degrees.
     max_terms : int
         Largest number of right-hand-side terms per output a candidate may have (the cost of a fit grows with its
         square); larger structures are skipped.
@@ -250,14 +252,26 @@ class StructureSearch(BaseEstimator):
         for n in orders:
             for output in outputs:
                 attempt(1, n, low, output)
-        ranked = sorted((r for r in rows if r["holdout_fit"] is not None and np.isfinite(r["holdout_fit"])),
-                        key=lambda r: -r["holdout_fit"])
-        finalists = [(r["n_states"], r["output"]) for r in ranked[:int(self.n_finalists)]]
-        if ranked and "identity" in outputs and (ranked[0]["n_states"], "identity") not in finalists:
+        # each order goes on with its simplest output function among those within tolerance of that order's best
+        # (the parsimony rule of the final choice, applied per order: near-ties are noise on a short hold-out);
+        # the n_finalists orders with the best hold-out FIT go on to the larger degrees
+        per_order: list[tuple[float, int, str]] = []
+        for n in orders:
+            scored_n = [r for r in rows if r["n_states"] == n and r["holdout_fit"] is not None
+                        and np.isfinite(r["holdout_fit"])]
+            if scored_n:
+                top_n = max(r["holdout_fit"] for r in scored_n)
+                pick = min((r for r in scored_n if r["holdout_fit"] >= top_n - float(self.tolerance)),
+                           key=lambda r: (r["n_params"], -r["holdout_fit"]))
+                per_order.append((top_n, n, pick["output"]))
+        per_order.sort(key=lambda t: -t[0])
+        finalists = [(n, output) for _, n, output in per_order[:int(self.n_finalists)]]
+        if per_order and "identity" in outputs and (per_order[0][1], "identity") not in finalists \
+                and (per_order[0][1], low, "identity") in fitted:
             # every output function contains the identity (eta = 0, wide limits, a positive signal): with linear
             # dynamics another output may win by mimicking a nonlinearity of the dynamics, which the larger degrees
             # model directly, so the identity at the best order always goes on
-            finalists.append((ranked[0]["n_states"], "identity"))
+            finalists.append((per_order[0][1], "identity"))
         for n, output in finalists:
             # the half-step input describes the input between samples, not the structure: keep the finalist's
             hs = fitted[(n, low, output)].half_step_input_
