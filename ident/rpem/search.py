@@ -95,7 +95,8 @@ class StructureSearch(BaseEstimator):
     Attributes
     ----------
     best_estimator_ : RecursivePEM
-        The chosen structure fitted with the full settings on the whole estimation record.
+        The chosen structure fitted with the full settings on the whole estimation record (or its screened fit,
+        see ``final_kept_``).
     best_params_ : dict
         ``{"n_states", "total_degree", "output"}`` of the chosen structure.
     best_score_ : float
@@ -106,6 +107,10 @@ class StructureSearch(BaseEstimator):
         model, None if skipped), ``fit_time_s``, ``note`` (warnings, skips, "chosen"). :meth:`table` prints it.
     n_screen_samples_ : int
         Samples used by the screening fits.
+    final_kept_ : bool
+        Whether ``best_estimator_`` is the final fit on the whole record (True) or the screened fit of the chosen
+        structure (False: no final fit was needed, or the final fit scored worse than the screened one on the
+        hold-out of the whole record, a recursion gone astray on the long record; ``results_`` says so).
     search_time_s_ : float
         Wall time of the whole search, final fit included.
     """
@@ -289,18 +294,30 @@ class StructureSearch(BaseEstimator):
         self.best_params_ = {"n_states": key[0], "total_degree": key[1], "output": key[2]}
         self.best_score_ = float(choice["holdout_fit"])
         same = n_screen == N and screen_settings["n_passes"] == settings.get("n_passes", 1)
+        self.final_kept_ = False
         if same:
             self.best_estimator_ = fitted[key]
         else:
             chosen = fitted[key]  # its half-step input and pass mode carry over to the final fit
             final = {**settings, "half_step_input": chosen.half_step_input_, "pass_mode": chosen.pass_mode_}
             est, score, note, secs = self._run(self._candidate(*key, final), u2, y2)
-            if est is None:
-                raise ValueError(f"the chosen structure {self.best_params_} failed on the whole record: {note}")
+            # the final fit may go astray on the long record (a recursion that diverges over many more samples):
+            # the screened model and the final one are both scored on the whole record's hold-out (the last
+            # `holdout` of the estimation record; the screening never saw it, the final fit with refit=True did),
+            # and the final one is kept unless it scores worse there
+            tail = N - round(float(self.holdout) * N)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                screened = float(chosen.score(u2[tail:], y2[tail:]))
+                whole = -math.inf if est is None else float(est.score(u2[tail:], y2[tail:]))
+            keep_final = np.isfinite(whole) and not whole < screened
             rows.append({"stage": "final", "n_states": key[0], "total_degree": key[1], "output": key[2],
                          "n_params": choice["n_params"], "holdout_fit": score, "fit_time_s": round(secs, 2),
-                         "note": note or "whole record, full settings"})
-            self.best_estimator_ = est
+                         "note": (note or "whole record, full settings") + (
+                             "" if keep_final else f"; not kept: hold-out FIT {whole:.1f} % < the screened "
+                                                   f"model's {screened:.1f} %")})
+            self.best_estimator_ = est if keep_final else chosen
+            self.final_kept_ = bool(keep_final)
         self.results_ = rows
         self.n_screen_samples_ = n_screen
         self.n_inputs_, self.n_outputs_ = m, d
