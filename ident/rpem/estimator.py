@@ -83,7 +83,10 @@ class RecursivePEM(BaseEstimator):
     ``theta0`` is given, is a chain of integrators, outside DM everywhere; a nonlinear model may be outside DM at some
     operating points only); there a candidate is accepted if it is no further outside DM than the current
     estimate (neither ``max Re eig(dF/dx) + delta`` nor the step's spectral radius above 1 grows), so the
-    estimate moves towards DM. Inside DM the rule is the thesis' one. The state and the sensitivities are clipped to
+    estimate moves towards DM. Inside DM the rule is the thesis' one. ``theta = 0`` itself sits on the stability
+    edge, where almost every small step makes the continuous-time or the discretised model less stable: from it the
+    estimate stays nearly frozen and ``fit`` warns (start from data, ``init="auto"``, or from a stable ``theta0``).
+    The state and the sensitivities are clipped to
     ``state_bound`` and ``sensitivity_bound``, so the recursion cannot diverge numerically.
 
     Units of the stability margin: the model runs on scaled time (``alpha`` model time units per second), so the
