@@ -8,6 +8,7 @@ from ident.rpem.regressors import (
     parse_terms,
     polynomial_terms,
 )
+from ident.rpem.search import StructureSearch
 from ident.rpem.selection import backward_elimination, forward_selection
 
 __all__ = [
@@ -18,6 +19,7 @@ __all__ = [
     "SCR_PAPER3_TERMS",
     "ParametricRPEM",
     "RecursivePEM",
+    "StructureSearch",
     "backward_elimination",
     "forward_selection",
     "parse_terms",

@@ -373,6 +373,79 @@ def is_stable(A, radius):
 
 
 @njit(cache=True)
+def max_real_eigenvalue(J):
+    """The largest real part of the eigenvalues of ``J`` (the stability degree of dx/dt = J x; negative: stable).
+
+    Closed form for one and two states; otherwise bisection on the shift s with the Routh test of ``J - s I``
+    (to 1e-9 of the matrix norm; no LAPACK, like the rest of the kernel)."""
+    N = J.shape[0]
+    if N == 1:
+        return J[0, 0]
+    if N == 2:
+        half_tr = 0.5 * (J[0, 0] + J[1, 1])
+        disc = half_tr * half_tr - (J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])
+        return half_tr + np.sqrt(disc) if disc > 0.0 else half_tr
+    norm = 0.0
+    for i in range(N):
+        row = 0.0
+        for c in range(N):
+            row += abs(J[i, c])
+        norm = max(norm, row)
+    lo, hi = -norm - 1e-12, norm + 1e-12  # every eigenvalue lies in the disc of radius ||J||_inf
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if is_hurwitz(J, -mid):  # every real part below mid
+            hi = mid
+        else:
+            lo = mid
+        if hi - lo <= 1e-9 * (norm + 1e-300):
+            break
+    return hi
+
+
+@njit(cache=True)
+def spectral_radius(A):
+    """The largest eigenvalue modulus of ``A`` (closed form for one and two states, else bisection with the
+    Schur-Cohn test of ``A / r``)."""
+    N = A.shape[0]
+    if N == 1:
+        return abs(A[0, 0])
+    if N == 2:
+        half_tr = 0.5 * (A[0, 0] + A[1, 1])
+        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+        disc = half_tr * half_tr - det
+        if disc >= 0.0:
+            r = np.sqrt(disc)
+            return max(abs(half_tr + r), abs(half_tr - r))
+        return np.sqrt(det)
+    norm = 0.0
+    for i in range(N):
+        row = 0.0
+        for c in range(N):
+            row += abs(A[i, c])
+        norm = max(norm, row)
+    if norm == 0.0:
+        return 0.0
+    lo, hi = 0.0, norm * (1.0 + 1e-12)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if mid > 0.0 and is_stable(A, mid):
+            hi = mid
+        else:
+            lo = mid
+        if hi - lo <= 1e-9 * norm:
+            break
+    return hi
+
+
+@njit(cache=True)
+def dm_violation(J, A, margin):
+    """How far a model is outside the model set DM at one point: ``(max(0, max Re eig(J) + margin),
+    max(0, rho(A) - 1))`` (both zero inside DM, up to the boundary)."""
+    return max(0.0, max_real_eigenvalue(J) + margin), max(0.0, spectral_radius(A) - 1.0)
+
+
+@njit(cache=True)
 def _clip(v, bound):
     if v > bound:
         return bound
@@ -474,6 +547,8 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
     L = np.empty((p, d))
     theta_c = np.empty(p)
     A_c = np.empty((N, N))
+    A_cur = np.empty((N, N))
+    J_c = np.empty((N, N))
     B_dummy = np.empty((1, 1))
     dh_eta = np.zeros(max(q, 1))
     eta = theta[pf:]
@@ -582,6 +657,21 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
             model_step(xv, WS[t], WH[t], theta_c, cfg, fvar, fpow, nf, owner, n_chain, x_next, A_c, B_dummy,
                        False, work)
             ok = is_hurwitz(work[1], cfg[CF_MARGIN]) and is_stable(A_c, 1.0)
+            if not ok:
+                # The thesis' rule refuses a candidate outside DM, which keeps an estimate inside DM there. When
+                # the current estimate is itself outside DM at this point (a start outside DM such as theta = 0,
+                # a chain of integrators, or an operating point where a nonlinear model's linearisation is
+                # unstable) that rule would refuse every step and freeze it; there a candidate is accepted if it
+                # is no further outside DM than the current estimate (the estimate moves towards DM).
+                for i in range(N):
+                    for c in range(N):
+                        J_c[i, c] = work[1][i, c]
+                model_step(xv, WS[t], WH[t], theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A_cur,
+                           B_dummy, False, work)
+                if not (is_hurwitz(work[1], cfg[CF_MARGIN]) and is_stable(A_cur, 1.0)):
+                    v_cur, w_cur = dm_violation(work[1], A_cur, cfg[CF_MARGIN])
+                    v_c, w_c = dm_violation(J_c, A_c, cfg[CF_MARGIN])
+                    ok = v_c <= v_cur and w_c <= w_cur
         if ok:
             for j in range(p):
                 theta[j] = theta_c[j]

@@ -1,6 +1,7 @@
 """Regressor term selection on validation fit (Paper III): backward elimination and forward selection."""
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -31,7 +32,12 @@ class SelectionResult:
 def _validation_fit(template: RecursivePEM, terms: Sequence[str], u_est: np.ndarray, y_est: np.ndarray,
                     u_val: np.ndarray, y_val: np.ndarray, theta0: dict[str, float] | None) -> float:
     th0 = None if theta0 is None else [theta0.get(t, 0.0) for t in terms]
-    est = template.clone(terms=list(terms), theta0=th0).fit(u_est, y_est)
+    with warnings.catch_warnings():
+        # a search fits poor candidates on purpose (a needed term removed): their rejected-update or divergence
+        # warnings are not about the model the user gets, whose own fit by the caller still warns; a diverged
+        # candidate scores low and is not selected
+        warnings.simplefilter("ignore", RuntimeWarning)
+        est = template.clone(terms=list(terms), theta0=th0).fit(u_est, y_est)
     return est.score(u_val, y_val)
 
 

@@ -1,0 +1,21 @@
+"""Smoke test of experiments.rpem_structure_search: a short record, a small grid, the JSON structure."""
+from __future__ import annotations
+
+import json
+
+from experiments import rpem_structure_search as rss
+
+
+def test_smoke_run_writes_the_chosen_structures(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the run folder goes to ./runs
+    out = tmp_path / "r.json"
+    code = rss.main(["--quick", "--systems", "coupled_drives", "--seeds", "0", "--json", str(out)])
+    res = json.loads(out.read_text())
+    assert code == 0 and res["quick"] is True
+    (row,) = res["rows"]
+    assert row["system"] == "coupled_drives" and row["seed"] == 0 and row["goal"] == 70.0
+    assert set(row["chosen"]) == {"n_states", "total_degree", "output"}
+    assert row["chosen"]["output"] in ("identity", "abs")  # the quick grid
+    assert row["validation_fit"] == res["summary"]["coupled_drives"]["fits"][0]
+    assert "hold-out FIT" in row["table"]
+    assert list((tmp_path / "runs" / "rpem_structure_search").iterdir())
