@@ -286,7 +286,7 @@ class NonlinearMPC:
             raise ValueError(f"fallback must be a policy with predict(observation, ...) or None, got "
                              f"{type(self.fallback).__name__}")
         if not isinstance(self.preview, (bool, np.bool_)):
-            raise ValueError(f"preview must be True or False, got {self.preview!r}")
+            raise ValueError(f"preview must be True or False, got {self.preview!r}")  # noqa: TRY004  (the rule)
 
     # ------------------------------------------------------------------------------------------- protocol hooks
     def attach(self, env: Any) -> None:
