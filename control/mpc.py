@@ -112,7 +112,7 @@ _STATUS_KINDS = {
     "Restoration_Failed": "restoration", "Error_In_Step_Computation": "restoration",
     "Search_Direction_Becomes_Too_Small": "small_step", "Invalid_Number_Detected": "nonfinite_model",
     "Not_Enough_Degrees_Of_Freedom": "infeasible", "QP_solver_failed": "qp_failure",
-    "Solve_Failed": "qp_failure"}
+    "Solve_Failed": "qp_failure", "Non_Regular_Sensitivities": "qp_failure"}
 #: solver statuses whose iterate may still be a valid (suboptimal) plan when it satisfies every constraint
 _USABLE_STATUSES = ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded", "Maximum_WallTime_Exceeded",
                     "Search_Direction_Becomes_Too_Small")
@@ -120,7 +120,10 @@ _USABLE_STATUSES = ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded", "
 
 def failure_kind(status: str, unified: str = "") -> str:
     """The :data:`FAILURE_KINDS` entry of an unsuccessful solver ``status`` (``return_status`` of the NLP solver's
-    stats; ``unified`` its ``unified_return_status``, used when the status itself is not known here)."""
+    stats; ``unified`` its ``unified_return_status``: NaN/Inf met by the solver first, then the status, then the
+    unified status when the status itself is not known here)."""
+    if unified == "SOLVER_RET_NAN":
+        return "nonfinite_model"   # e.g. sqpmethod's Non_Regular_Sensitivities after NaN in its functions
     kind = _STATUS_KINDS.get(status)
     if kind is not None:
         return kind
@@ -534,7 +537,8 @@ class NonlinearMPC:
             # an iterate that satisfies the model and the constraints is a valid (suboptimal) plan: use it, count it
             viol = max(float(np.max(self._lbg - g)), float(np.max(g - self._ubg)), 0.0)
             if status not in _USABLE_STATUSES or viol > 1e-6:
-                self._failure = (failure_kind(status, str(st.get("unified_return_status", ""))), status)
+                self._failure = (failure_kind(status, str(st.get("unified_return_status", ""))),
+                                 f"{status} (constraint violation {viol:.3g})")
                 return None
             self._suboptimal += 1
         X = wopt[:nx * H].reshape(H, nx)

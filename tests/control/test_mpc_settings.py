@@ -154,4 +154,6 @@ def test_failure_kinds_of_solver_statuses():
     assert failure_kind("Search_Direction_Becomes_Too_Small") == "small_step"
     assert failure_kind("QP_solver_failed") == "qp_failure"
     assert failure_kind("something new", "SOLVER_RET_NAN") == "nonfinite_model"
+    assert failure_kind("Non_Regular_Sensitivities", "SOLVER_RET_NAN") == "nonfinite_model"
+    assert failure_kind("Non_Regular_Sensitivities", "SOLVER_RET_UNKNOWN") == "qp_failure"
     assert failure_kind("something new") == "other"
