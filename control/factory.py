@@ -41,7 +41,8 @@ VALIDATION_SEED = 99
 IDENT_SOLVER: dict[str, Any] = {"solver": "sqpmethod", "solver_options": {
     "qpsol": "qrqp", "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False,
                                        "max_iter": 100},
-    "print_iteration": False, "print_header": False, "print_status": False, "max_iter": 20, "error_on_fail": False}}
+    "print_iteration": False, "print_header": False, "print_status": False, "max_iter": 20, "error_on_fail": False},
+    "rescue_solver": "ipopt"}
 #: the identified-model MPC: implicit stage equations, the cycle preview of the engine-out disturbances (as the
 #: oracle), an EKF reading the tailpipe NOx *and* NH3 sensors, and a terminal value of stored NH3 [g AdBlue per
 #: mol], all chosen by ``python -m experiments.calibrate_controllers --controller identified_nh3 identified_preview
@@ -137,7 +138,7 @@ def greybox_record(seeds: tuple[int, ...] = IDENT_SEEDS,
 def identified_mpc(model: Any, quick: bool = False, storage_value_g_per_mol: float | None = None,
                    safe_slip_ppm: float = 20.0, margin_k: float = 30.0, flow_ref_mol_s: float = 0.5,
                    cap_weight: float = 2.0e4, preview: bool | None = None, implicit: bool = True,
-                   nh3_sensor: bool | None = None, slip_guard: bool = True) -> Any:
+                   nh3_sensor: bool | None = None, slip_guard: bool = True, rescue: bool = True) -> Any:
     """NMPC on a fitted grey-box model (:class:`ident.greybox.StorageGreyBox`), EKF on the tailpipe sensors.
 
     ``storage_value_g_per_mol`` > 0 adds the oracle's terminal value of stored NH3 on the identified storage state
@@ -154,7 +155,8 @@ def identified_mpc(model: Any, quick: bool = False, storage_value_g_per_mol: flo
     the returned policy's ``env_kwargs``), so a high NOx-sensor reading is no longer ambiguous between NOx
     breakthrough and NH3 slip (default :data:`IDENTIFIED_NH3_SENSOR`). ``slip_guard`` (with the NH3 sensor): a
     failed solve doses nothing while that sensor reads above :data:`SLIP_GUARD_PPM` (see
-    :class:`~control.mpc.NonlinearMPC`). ``quick``: horizon 10 stages instead of 20.
+    :class:`~control.mpc.NonlinearMPC`). ``rescue``: IPOPT solves the NLP when the SQP method fails
+    (:data:`IDENT_SOLVER`; False: the SQP method alone). ``quick``: horizon 10 stages instead of 20.
 
     The estimator is the returned controller's ``estimator`` (:class:`~control.estimation.ObservationEKF` on the
     model at its own sample time); the NLP runs the same model discretised at the 2 s stage length.
@@ -202,7 +204,8 @@ def identified_mpc(model: Any, quick: bool = False, storage_value_g_per_mol: flo
         stage_model=StorageGreyBox.from_params(model.params_, model.sensor_gains_, n, model.dt * 4),
         implicit_stage=model.implicit_stage if implicit else None, terminal_cost=terminal_cost)
     mpc = NonlinearMPC(adapter, horizon=10 if quick else 20, stage_steps=4, preview=preview, estimator=estimator,
-                       slip_guard=(nh3_obs, SLIP_GUARD_PPM) if nh3_sensor and slip_guard else None, **IDENT_SOLVER)
+                       slip_guard=(nh3_obs, SLIP_GUARD_PPM) if nh3_sensor and slip_guard else None,
+                       **(IDENT_SOLVER if rescue else {k: v for k, v in IDENT_SOLVER.items() if k != "rescue_solver"}))
     mpc.env_kwargs = {"nh3_sensor": True} if nh3_sensor else {}  # what the policy needs of the environment
     return mpc
 

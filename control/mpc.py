@@ -235,6 +235,13 @@ class NonlinearMPC:
         multipliers of the previous problem (another disturbance, another active set) make that Hessian indefinite
         after a transient, and the QP solver then pivots for long or fails (non-finite steps and NaN gradients
         downstream); starting from zero multipliers (the objective's Hessian) converges in a few iterations.
+        With IPOPT the bound multipliers (``lam_x0``) are passed too: its warm start needs both.
+    rescue_solver, rescue_options : an optional second ``nlpsol`` plugin (and its options; IPOPT's defaults as
+        above) that solves the same NLP when the first solver fails, from the cold start (the estimated state held
+        over the horizon, the last dose): a fast SQP method for the common case, a robust interior-point method
+        for the rest. A rescued solve is not a failure; it is counted as ``solver_rescued`` (and kept in
+        :attr:`rescues_` with the first solver's failure kind); a solve that both fail counts as failed, with the
+        rescue's kind.
     """
 
     def __init__(self, model: PredictionModel, horizon: int = 20, stage_steps: int = 4,
@@ -242,7 +249,8 @@ class NonlinearMPC:
                  max_rate_change_g_s2: float = 1.0, preview: bool = False, fallback: Any = None,
                  solver: str = "ipopt", solver_options: dict | None = None,
                  warm_start_duals: bool | None = None, slip_guard: tuple[int, float] | None = None,
-                 estimator: StateEstimator | None = None) -> None:
+                 estimator: StateEstimator | None = None, rescue_solver: str | None = None,
+                 rescue_options: dict | None = None) -> None:
         self.model = model
         self.horizon = horizon
         self.stage_steps = stage_steps
@@ -267,6 +275,13 @@ class NonlinearMPC:
             raise ValueError(f"solver must be the name of a CasADi nlpsol plugin, got {solver!r}")
         if solver_options is not None and not isinstance(solver_options, dict):
             raise ValueError(f"solver_options must be a dict of CasADi options or None, got {solver_options!r}")
+        if rescue_solver is not None and (not isinstance(rescue_solver, str) or not rescue_solver):
+            raise ValueError(f"rescue_solver must be the name of a CasADi nlpsol plugin or None, got "
+                             f"{rescue_solver!r}")
+        if rescue_options is not None and not isinstance(rescue_options, dict):
+            raise ValueError(f"rescue_options must be a dict of CasADi options or None, got {rescue_options!r}")
+        self.rescue_solver = rescue_solver
+        self.rescue_options = rescue_options
         self._default_fallback: Any = None
         self.dt = 0.5
         self.max_rate_g_s = DEFAULT_MAX_RATE_G_S
@@ -321,7 +336,7 @@ class NonlinearMPC:
         it = np.asarray(self._iters) if self._iters else np.array([math.nan])
         out = {"solver_failures": float(self._failures), "solves": float(len(self._solve_ms)),
                "solver_suboptimal": float(self._suboptimal), "slip_guarded_steps": float(self._guarded),
-               "fallback_errors": float(self._fallback_errors),
+               "fallback_errors": float(self._fallback_errors), "solver_rescued": float(self._rescued),
                "solve_time_ms_median": float(np.median(t)), "solve_time_ms_p95": float(np.percentile(t, 95)),
                "solve_time_ms_max": float(np.max(t)), "solve_wall_ms_median": float(np.median(tw)),
                "solve_wall_ms_p95": float(np.percentile(tw, 95)), "solver_iterations_mean": float(np.mean(it))}
@@ -333,6 +348,7 @@ class NonlinearMPC:
         self._suboptimal = 0
         self._guarded = 0
         self._fallback_errors = 0
+        self._rescued = 0
         self._kinds: dict[str, int] = {}
         self._plan_age = 0
         self._step = 0
@@ -341,12 +357,15 @@ class NonlinearMPC:
         self._iters: list[int] = []
         self._w0: np.ndarray | None = None
         self._lam_g0: np.ndarray | None = None
+        self._lam_x0: np.ndarray | None = None
         self._u_prev = 0.0
         self._failure: tuple[str, str] | None = None
         self.last_plan_: dict[str, np.ndarray] | None = None
         self.status_counts_: dict[str, int] = {}
         #: the failed solves of the episode: (step, kind, solver status or exception)
         self.failures_: list[tuple[int, str, str]] = []
+        #: the solves the rescue solver saved: (step, the first solver's failure kind, its status)
+        self.rescues_: list[tuple[int, str, str]] = []
 
     # ------------------------------------------------------------------------------------------------- the NLP
     def _build(self) -> None:
@@ -394,14 +413,21 @@ class NonlinearMPC:
         self._lbg, self._ubg = np.array(lbg), np.array(ubg)
         wv = ca.vertcat(ca.vec(X), U, S)
         pv = ca.vertcat(x0, ca.vec(D), ca.vec(Pst), Pt, u_prev)
+        self._nlp = {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}
+        self._solver = self._nlpsol("mpc", self.solver, self.solver_options)
+        self._rescue = None if self.rescue_solver is None else self._nlpsol("mpc_rescue", self.rescue_solver,
+                                                                            self.rescue_options)
+        self._H, self._nx = H, nx
+
+    def _nlpsol(self, name: str, solver: str, options: dict | None) -> ca.Function:
+        """The NLP's ``nlpsol`` with ``solver``'s quiet defaults updated by ``options``."""
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": 60, "ipopt.tol": 1e-6,
                 "ipopt.acceptable_tol": 1e-3, "ipopt.acceptable_iter": 3, "ipopt.warm_start_init_point": "yes",
-                "ipopt.sb": "yes", "ipopt.mu_init": 1e-3} if self.solver == "ipopt" else {"print_time": False}
+                "ipopt.sb": "yes", "ipopt.mu_init": 1e-3} if solver == "ipopt" else {"print_time": False}
         # NaN/Inf in the NLP's functions is a failed solve, counted by kind (nonfinite_model), not a printed line
         opts["show_eval_warnings"] = False
-        opts.update(self.solver_options or {})
-        self._solver = ca.nlpsol("mpc", self.solver, {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}, opts)
-        self._H, self._nx = H, nx
+        opts.update(options or {})
+        return ca.nlpsol(name, solver, self._nlp, opts)
 
     # ------------------------------------------------------------------------------------------------- acting
     def _disturbances(self, observation: np.ndarray) -> np.ndarray:
@@ -480,6 +506,7 @@ class NonlinearMPC:
                 rate = float(plan["u"][i]) if plan is not None and i < len(plan["u"]) else self._fallback_rate(obs)
             self._w0 = None
             self._lam_g0 = None
+            self._lam_x0 = None
             lim = self.max_rate_change_g_s2 * self.dt
             rate = min(max(rate, self._u_prev - lim), self._u_prev + lim)
         rate = min(max(rate, 0.0), self.max_rate_g_s)
@@ -523,24 +550,23 @@ class NonlinearMPC:
         args = {"x0": w0, "p": pv, "lbx": self._lbw, "ubx": self._ubw, "lbg": self._lbg, "ubg": self._ubg}
         if self._lam_g0 is not None and self.warm_start_duals:
             args["lam_g0"] = self._lam_g0
-        sol = self._solver(**args)
-        st = self._solver.stats()
-        self._iters.append(int(st.get("iter_count", 0)))
-        status = str(st.get("return_status", ""))
-        self.status_counts_[status] = self.status_counts_.get(status, 0) + 1
-        wopt = np.asarray(sol["x"]).ravel()
-        g = np.asarray(sol["g"]).ravel()
-        if not (np.all(np.isfinite(wopt)) and np.all(np.isfinite(g))):
-            self._failure = ("nonfinite_model", status or "non-finite solution")
+            if self.solver == "ipopt" and self._lam_x0 is not None:
+                args["lam_x0"] = self._lam_x0
+        sol, failure = self._attempt(self._solver, args, "")
+        if sol is None and self._rescue is not None:
+            cold = np.clip(np.concatenate([np.tile(x0, H), np.full(H, self._u_prev), np.zeros(H)]), self._lbw,
+                           self._ubw)
+            bounds = {k: args[k] for k in ("p", "lbx", "ubx", "lbg", "ubg")}
+            sol, second = self._attempt(self._rescue, {**bounds, "x0": cold}, "rescue:")
+            if sol is not None:
+                self._rescued += 1
+                self.rescues_.append((self._step, *failure))
+            else:
+                failure = (second[0], f"{failure[1]}; rescue: {second[1]}")
+        if sol is None:
+            self._failure = failure
             return None
-        if not st.get("success", False):
-            # an iterate that satisfies the model and the constraints is a valid (suboptimal) plan: use it, count it
-            viol = max(float(np.max(self._lbg - g)), float(np.max(g - self._ubg)), 0.0)
-            if status not in _USABLE_STATUSES or viol > 1e-6:
-                self._failure = (failure_kind(status, str(st.get("unified_return_status", ""))),
-                                 f"{status} (constraint violation {viol:.3g})")
-                return None
-            self._suboptimal += 1
+        wopt = np.asarray(sol["x"]).ravel()
         X = wopt[:nx * H].reshape(H, nx)
         U = wopt[nx * H:nx * H + H]
         S = wopt[nx * H + H:]
@@ -549,4 +575,32 @@ class NonlinearMPC:
         # warm start: shift by one stage only every stage_steps intervals would be exact; a plain reuse is close
         self._w0 = wopt
         self._lam_g0 = np.asarray(sol["lam_g"]).ravel()
+        self._lam_x0 = np.asarray(sol["lam_x"]).ravel()
         return float(U[0])
+
+    def _attempt(self, solver: ca.Function, args: dict[str, Any],
+                 tag: str) -> tuple[dict[str, Any] | None, tuple[str, str]]:
+        """One solve: ``(solution, ("", ""))``, or ``(None, (failure kind, status))`` for a failed one (an unusable
+        status, a non-finite result, CasADi's RuntimeError). Counts iterations, statuses (``tag`` + status) and
+        suboptimal plans."""
+        try:
+            sol = solver(**args)
+            st = solver.stats()
+        except RuntimeError as exc:
+            return None, ("error", f"RuntimeError: {exc}")
+        self._iters.append(int(st.get("iter_count", 0)))
+        status = str(st.get("return_status", ""))
+        key = tag + status
+        self.status_counts_[key] = self.status_counts_.get(key, 0) + 1
+        wopt = np.asarray(sol["x"]).ravel()
+        g = np.asarray(sol["g"]).ravel()
+        if not (np.all(np.isfinite(wopt)) and np.all(np.isfinite(g))):
+            return None, ("nonfinite_model", status or "non-finite solution")
+        if not st.get("success", False):
+            # an iterate that satisfies the model and the constraints is a valid (suboptimal) plan: use it, count it
+            viol = max(float(np.max(self._lbg - g)), float(np.max(g - self._ubg)), 0.0)
+            if status not in _USABLE_STATUSES or viol > 1e-6:
+                return None, (failure_kind(status, str(st.get("unified_return_status", ""))),
+                              f"{status} (constraint violation {viol:.3g})")
+            self._suboptimal += 1
+        return sol, ("", "")
