@@ -157,3 +157,23 @@ def test_failure_kinds_of_solver_statuses():
     assert failure_kind("Non_Regular_Sensitivities", "SOLVER_RET_NAN") == "nonfinite_model"
     assert failure_kind("Non_Regular_Sensitivities", "SOLVER_RET_UNKNOWN") == "qp_failure"
     assert failure_kind("something new") == "other"
+
+
+def test_a_rescue_solver_saves_the_failed_solves_of_the_first():
+    """An SQP method whose QP solver may pivot once fails every solve; IPOPT as the rescue solver solves them all: no
+    failure, every solve counted as rescued with the first solver's kind, and plans applied (not the fallback)."""
+    sqp = {"qpsol": "qrqp", "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False,
+                                              "max_iter": 1},
+           "print_iteration": False, "print_header": False, "print_status": False, "max_iter": 1,
+           "error_on_fail": False}
+    alone = _mpc(solver="sqpmethod", solver_options=sqp)
+    assert evaluate(alone, cycles="whsc", max_steps=4)[0].stats["solver_failures"] == 4
+    mpc = _mpc(solver="sqpmethod", solver_options=sqp, rescue_solver="ipopt")
+    s = evaluate(mpc, cycles="whsc", max_steps=4)[0].stats
+    assert s["solver_failures"] == 0 and s["solver_rescued"] == 4 and len(mpc.rescues_) == 4
+    assert all(r[1] in FAILURE_KINDS for r in mpc.rescues_) and mpc.last_plan_ is not None
+    assert any(k.startswith("rescue:") for k in mpc.status_counts_)
+    with pytest.raises(ValueError, match="rescue_solver"):
+        _mpc(rescue_solver="")
+    with pytest.raises(ValueError, match="rescue_options"):
+        _mpc(rescue_solver="ipopt", rescue_options="max_iter=5")
