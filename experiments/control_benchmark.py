@@ -10,10 +10,14 @@ sensor alone) and ``mpc_identified_no_preview`` (NOx sensor alone, the measured 
 what a truck without an NH3 sensor or route preview can do), ``mpc_oracle`` (NMPC on the first-principles catalyst
 with privileged state and the cycle preview), and the shipped RL policies ``ppo`` / ``sac`` when :mod:`control.rl`
 provides them (skipped otherwise, and said so). Writes the KPI table, a JSON {"cycles": {cycle: {"controllers": {name:
-KPIs and timings}}}} and plots of the closed-loop trajectories to ``runs/control_benchmark/<stamp>/``. ``--quick``:
-the WHTC only, shorter oracle horizon. ``--seeds``: the reset seeds (sensor noise) of every episode (default 0); with
-several, each controller's figures are their means and ``per_seed`` lists NOx, slip and failed solves per seed (the
-plots show the first seed).
+KPIs and timings}}}} and plots of the closed-loop trajectories to ``runs/control_benchmark/<stamp>/``. Each row has
+``gap_closed`` (the fraction of the look-up-table-to-oracle tailpipe NOx gap it closes) and ``gap_to_limit`` (the
+fraction of the gap to the clairvoyant limit at 10 ppm, read from the stored limit by :func:`stored_limit_nox`; None
+until ``control.limit.stored_limit`` exists); each NMPC's row has ``solves``, ``solver_failures`` and
+``solver_failure_kinds`` (kind -> count, :data:`control.mpc.FAILURE_KINDS`), ``solver_rescued``, solve times.
+``--quick``: the WHTC only, shorter oracle horizon. ``--seeds``: the reset seeds (sensor noise) of every episode
+(default 0); with several, each controller's figures are their means and ``per_seed`` lists NOx, slip and failed
+solves per seed (the plots show the first seed).
 
 Spread over seeds (``--cycles whtc --seeds 0 1 2 3 4 5``): the baselines hardly move (look-up table 0.610-0.612 g/kWh,
 6.8-7.3 ppm). The identified NMPC did, before its slip guard (below): 6.7 ppm mean slip for seed 0 but 10.8-13.0 ppm
@@ -48,7 +52,7 @@ REPORT_KEYS = ("nox_conversion", "engine_out_nox_g_per_kwh", "tailpipe_nox_g_per
                "peak_nh3_slip_ppm", "adblue_g", "nh3_slip_g", "engine_work_kwh", "policy_time_ms_median",
                "policy_time_ms_p95", "solver_failures", "solve_time_ms_median", "solve_time_ms_p95",
                "solve_time_ms_max", "solve_wall_ms_median", "solve_wall_ms_p95", "solver_iterations_mean",
-               "solver_suboptimal", "slip_guarded_steps", "solves", "fallback_errors")
+               "solver_suboptimal", "slip_guarded_steps", "solves", "fallback_errors", "solver_rescued")
 #: the slip budget [ppm] of the clairvoyant limit that ``gap_to_limit`` is measured against (Euro VI)
 LIMIT_BUDGET_PPM = 10.0
 
