@@ -242,6 +242,10 @@ class NonlinearMPC:
         for the rest. A rescued solve is not a failure; it is counted as ``solver_rescued`` (and kept in
         :attr:`rescues_` with the first solver's failure kind); a solve that both fail counts as failed, with the
         rescue's kind.
+    rescue_hold_steps : after a rescue, the next ``rescue_hold_steps`` solves go to the rescue solver first
+        (warm-started from the last plan; the first solver, then the rescue from the cold start, if it fails):
+        failed solves come in stretches (a heat-up desorbing the store), and a first solver that fails again at
+        every step would double each step's cost there. Counted as ``solver_rescue_held`` (the solves it made).
     """
 
     def __init__(self, model: PredictionModel, horizon: int = 20, stage_steps: int = 4,
@@ -250,7 +254,7 @@ class NonlinearMPC:
                  solver: str = "ipopt", solver_options: dict | None = None,
                  warm_start_duals: bool | None = None, slip_guard: tuple[int, float] | None = None,
                  estimator: StateEstimator | None = None, rescue_solver: str | None = None,
-                 rescue_options: dict | None = None) -> None:
+                 rescue_options: dict | None = None, rescue_hold_steps: int = 0) -> None:
         self.model = model
         self.horizon = horizon
         self.stage_steps = stage_steps
@@ -280,8 +284,12 @@ class NonlinearMPC:
                              f"{rescue_solver!r}")
         if rescue_options is not None and not isinstance(rescue_options, dict):
             raise ValueError(f"rescue_options must be a dict of CasADi options or None, got {rescue_options!r}")
+        if isinstance(rescue_hold_steps, bool) or not isinstance(rescue_hold_steps, (int, np.integer)) \
+                or rescue_hold_steps < 0:
+            raise ValueError(f"rescue_hold_steps must be a whole number >= 0, got {rescue_hold_steps!r}")
         self.rescue_solver = rescue_solver
         self.rescue_options = rescue_options
+        self.rescue_hold_steps = int(rescue_hold_steps)
         self._default_fallback: Any = None
         self.dt = 0.5
         self.max_rate_g_s = DEFAULT_MAX_RATE_G_S
@@ -337,6 +345,7 @@ class NonlinearMPC:
         out = {"solver_failures": float(self._failures), "solves": float(len(self._solve_ms)),
                "solver_suboptimal": float(self._suboptimal), "slip_guarded_steps": float(self._guarded),
                "fallback_errors": float(self._fallback_errors), "solver_rescued": float(self._rescued),
+               "solver_rescue_held": float(self._held),
                "solve_time_ms_median": float(np.median(t)), "solve_time_ms_p95": float(np.percentile(t, 95)),
                "solve_time_ms_max": float(np.max(t)), "solve_wall_ms_median": float(np.median(tw)),
                "solve_wall_ms_p95": float(np.percentile(tw, 95)), "solver_iterations_mean": float(np.mean(it))}
@@ -349,6 +358,8 @@ class NonlinearMPC:
         self._guarded = 0
         self._fallback_errors = 0
         self._rescued = 0
+        self._held = 0
+        self._hold = 0
         self._kinds: dict[str, int] = {}
         self._plan_age = 0
         self._step = 0
@@ -552,14 +563,21 @@ class NonlinearMPC:
             args["lam_g0"] = self._lam_g0
             if self.solver == "ipopt" and self._lam_x0 is not None:
                 args["lam_x0"] = self._lam_x0
-        sol, failure = self._attempt(self._solver, args, "")
+        bounds = {k: args[k] for k in ("p", "lbx", "ubx", "lbg", "ubg")}
+        sol = None
+        if self._rescue is not None and self._hold > 0:   # a hard stretch: the rescue solver first, warm-started
+            self._hold -= 1
+            sol, _ = self._attempt(self._rescue, {**bounds, "x0": w0}, "rescue:")
+            self._held += sol is not None
+        if sol is None:
+            sol, failure = self._attempt(self._solver, args, "")
         if sol is None and self._rescue is not None:
             cold = np.clip(np.concatenate([np.tile(x0, H), np.full(H, self._u_prev), np.zeros(H)]), self._lbw,
                            self._ubw)
-            bounds = {k: args[k] for k in ("p", "lbx", "ubx", "lbg", "ubg")}
             sol, second = self._attempt(self._rescue, {**bounds, "x0": cold}, "rescue:")
             if sol is not None:
                 self._rescued += 1
+                self._hold = self.rescue_hold_steps
                 self.rescues_.append((self._step, *failure))
             else:
                 failure = (second[0], f"{failure[1]}; rescue: {second[1]}")

@@ -173,6 +173,13 @@ def test_a_rescue_solver_saves_the_failed_solves_of_the_first():
     assert s["solver_failures"] == 0 and s["solver_rescued"] == 4 and len(mpc.rescues_) == 4
     assert all(r[1] in FAILURE_KINDS for r in mpc.rescues_) and mpc.last_plan_ is not None
     assert any(k.startswith("rescue:") for k in mpc.status_counts_)
+    # with a hold, the rescue solver goes first for that many steps after a rescue
+    held = _mpc(solver="sqpmethod", solver_options=sqp, rescue_solver="ipopt", rescue_hold_steps=3)
+    s = evaluate(held, cycles="whsc", max_steps=8)[0].stats
+    assert s["solver_failures"] == 0 and s["solver_rescued"] == 2 and s["solver_rescue_held"] == 6
+    assert [r[0] for r in held.rescues_] == [0, 4]
+    with pytest.raises(ValueError, match="rescue_hold_steps"):
+        _mpc(rescue_solver="ipopt", rescue_hold_steps=-1)
     with pytest.raises(ValueError, match="rescue_solver"):
         _mpc(rescue_solver="")
     with pytest.raises(ValueError, match="rescue_options"):
