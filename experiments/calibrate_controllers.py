@@ -1,7 +1,7 @@
 """Calibrate each MPC's storage knob on calibration cycles, never on the benchmark cycles.
 
     python -m experiments.calibrate_controllers [--json PATH] [--controller identified identified_preview oracle]
-        [--values V ...] [--seeds 5 6 7 8] [--slip-target 8] [--workers 2] [--no-rescue]
+        [--values V ...] [--seeds 5 6 7 8] [--noise-seeds 0 1 2] [--slip-target 8] [--workers 2] [--no-rescue]
 
 An economic MPC fills the NH3 storage as far as its terminal cost lets it: little storage means NOx breakthrough
 at load steps, a full store slips at the next heat-up. The knob per controller (:data:`KNOBS`):
@@ -19,7 +19,9 @@ calibration (:mod:`control.baselines`) picks it: the lowest mean tailpipe NOx am
 is at most ``--slip-target`` (8 ppm: a 20 % margin below the 10 ppm limit) on *every* calibration cycle. The
 table also gives each value's failed solves, rescued solves and solve times (the median of the episodes' medians
 and the worst cycle's p95, CPU time of the solving thread). ``--no-rescue`` builds the grey-box NMPCs without their
-IPOPT rescue solver (the comparison that chose it). The result and all runs go to
+IPOPT rescue solver (the comparison that chose it). ``--noise-seeds``: each calibration cycle is run once per
+sensor-noise seed (the same cycle as without the flag, ``reset(seed=noise seed, options={"cycle_seed": ...})``),
+the robustness check of a chosen design. The result and all runs go to
 ``runs/calibrate_controllers/<stamp>/``; the chosen numbers are the defaults of :mod:`control.factory`
 (``IDENTIFIED_STORAGE_VALUE``, ``ORACLE_SAFE_SLIP_PPM``, with the command and table that chose them). Re-run it
 whenever the plant changes.
@@ -60,18 +62,29 @@ def _controller(kind: str, value: float, model: Any, rescue: bool = True) -> Any
     raise ValueError(f"controller must be one of {sorted(KNOBS)}, got {kind!r}")
 
 
-def episode(kind: str, value: float, seed: int, model_file: str | None, rescue: bool = True) -> dict[str, Any]:
+def cycle_seed(seed: int) -> int:
+    """The seed of the random cycle that ``UreaSCREnv(cycle="random").reset(seed=seed)`` draws (so that the cycle can
+    be replayed under another sensor-noise seed with ``options={"cycle_seed": ...}``)."""
+    from gymnasium.utils import seeding
+
+    return int(seeding.np_random(seed)[0].integers(0, 2**31 - 1))
+
+
+def episode(kind: str, value: float, seed: int, model_file: str | None, rescue: bool = True,
+            noise_seed: int | None = None) -> dict[str, Any]:
     """One closed-loop episode of ``kind`` with its knob at ``value`` on the random cycle of ``seed`` (the grey-box
-    model read from ``model_file`` for the identified kinds, with or without its ``rescue`` solver)."""
+    model read from ``model_file`` for the identified kinds, with or without its ``rescue`` solver); with
+    ``noise_seed``, the same cycle under the sensor noise of that seed."""
     from control.evaluation import evaluate
     from ident.greybox import StorageGreyBox
 
     t0 = time.perf_counter()
     policy = _controller(kind, value, None if model_file is None else StorageGreyBox.load(model_file), rescue)
-    res = evaluate(policy, cycles=("random",), seeds=(seed,), env_kwargs=getattr(policy, "env_kwargs", None),
-                   name=kind)[0]
+    run = {"seeds": (seed,)} if noise_seed is None else {"seeds": (noise_seed,),
+                                                         "reset_options": {"cycle_seed": cycle_seed(seed)}}
+    res = evaluate(policy, cycles=("random",), env_kwargs=getattr(policy, "env_kwargs", None), name=kind, **run)[0]
     k = res.kpis
-    return {"controller": kind, "knob": KNOBS[kind][0], "value": value, "seed": seed,
+    return {"controller": kind, "knob": KNOBS[kind][0], "value": value, "seed": seed, "noise_seed": noise_seed,
             "tailpipe_nox_g_per_kwh": k["tailpipe_nox_g_per_kwh"], "mean_nh3_slip_ppm": k["mean_nh3_slip_ppm"],
             "peak_nh3_slip_ppm": k["peak_nh3_slip_ppm"], "nox_conversion": k["nox_conversion"],
             "solver_failures": res.stats.get("solver_failures", float("nan")),
@@ -114,6 +127,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--values", nargs="+", type=float, default=None,
                     help="knob values to try (default: KNOBS per controller)")
     ap.add_argument("--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), help="random calibration cycles")
+    ap.add_argument("--noise-seeds", nargs="+", type=int, default=None,
+                    help="run each calibration cycle under these sensor-noise seeds (default: the cycle's own seed)")
     ap.add_argument("--slip-target", type=float, default=SLIP_TARGET_PPM, help="mean slip bound per cycle [ppm]")
     ap.add_argument("--ident-seeds", nargs="+", type=int, default=None,
                     help="random cycles of the grey-box identification (default: control.factory.IDENT_SEEDS)")
@@ -138,10 +153,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         model, ident = greybox_record(seeds, excitation)
         model_file = str(model.save(out / "greybox_model"))
     tasks = [{"kind": c, "value": v, "seed": s, "model_file": model_file if c.startswith("identified") else None,
-              "rescue": not args.no_rescue} for c in args.controller for v in (args.values or KNOBS[c][1])
-             for s in args.seeds]
+              "rescue": not args.no_rescue, "noise_seed": n} for c in args.controller
+             for v in (args.values or KNOBS[c][1]) for s in args.seeds for n in (args.noise_seeds or [None])]
     rows = run_sweep(episode, tasks, description="calibration episodes", **from_args(args))
     doc: dict[str, Any] = {"slip_target_ppm": args.slip_target, "seeds": args.seeds, "rows": rows, "chosen": {},
+                           "noise_seeds": args.noise_seeds,
                            "rescue": not args.no_rescue,
                            "identification": None if ident is None else ident["data"]}
     for c in args.controller:
