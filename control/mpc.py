@@ -235,7 +235,6 @@ class NonlinearMPC:
         multipliers of the previous problem (another disturbance, another active set) make that Hessian indefinite
         after a transient, and the QP solver then pivots for long or fails (non-finite steps and NaN gradients
         downstream); starting from zero multipliers (the objective's Hessian) converges in a few iterations.
-        With IPOPT the bound multipliers (``lam_x0``) are passed too: its warm start needs both.
     rescue_solver, rescue_options : an optional second ``nlpsol`` plugin (and its options; IPOPT's defaults as
         above) that solves the same NLP when the first solver fails, from the cold start (the estimated state held
         over the horizon, the last dose): a fast SQP method for the common case, a robust interior-point method
@@ -368,7 +367,6 @@ class NonlinearMPC:
         self._iters: list[int] = []
         self._w0: np.ndarray | None = None
         self._lam_g0: np.ndarray | None = None
-        self._lam_x0: np.ndarray | None = None
         self._u_prev = 0.0
         self._failure: tuple[str, str] | None = None
         self.last_plan_: dict[str, np.ndarray] | None = None
@@ -517,7 +515,6 @@ class NonlinearMPC:
                 rate = float(plan["u"][i]) if plan is not None and i < len(plan["u"]) else self._fallback_rate(obs)
             self._w0 = None
             self._lam_g0 = None
-            self._lam_x0 = None
             lim = self.max_rate_change_g_s2 * self.dt
             rate = min(max(rate, self._u_prev - lim), self._u_prev + lim)
         rate = min(max(rate, 0.0), self.max_rate_g_s)
@@ -561,8 +558,6 @@ class NonlinearMPC:
         args = {"x0": w0, "p": pv, "lbx": self._lbw, "ubx": self._ubw, "lbg": self._lbg, "ubg": self._ubg}
         if self._lam_g0 is not None and self.warm_start_duals:
             args["lam_g0"] = self._lam_g0
-            if self.solver == "ipopt" and self._lam_x0 is not None:
-                args["lam_x0"] = self._lam_x0
         bounds = {k: args[k] for k in ("p", "lbx", "ubx", "lbg", "ubg")}
         sol = None
         if self._rescue is not None and self._hold > 0:   # a hard stretch: the rescue solver first, warm-started
@@ -593,7 +588,6 @@ class NonlinearMPC:
         # warm start: shift by one stage only every stage_steps intervals would be exact; a plain reuse is close
         self._w0 = wopt
         self._lam_g0 = np.asarray(sol["lam_g"]).ravel()
-        self._lam_x0 = np.asarray(sol["lam_x"]).ravel()
         return float(U[0])
 
     def _attempt(self, solver: ca.Function, args: dict[str, Any],
