@@ -64,3 +64,11 @@ def test_noise_seeds_replay_the_same_calibration_cycle():
     assert np.array_equal(env.trace.exhaust_flow_mol_s, own)   # the same cycle ...
     sensed_other = [env.step(a)[0][3] for _ in range(20)]
     assert not np.allclose(sensed_own, sensed_other)            # ... under other sensor noise
+
+
+def test_choose_refuses_values_that_fail_more_than_one_percent_of_their_solves():
+    rows = [dict(_row(50, 5, 0.30, 2.0, fails=10.0), solves=3600.0),
+            dict(_row(80, 5, 0.20, 3.0, fails=100.0), solves=3600.0)]   # lower NOx, but 2.8 % failed solves
+    res = choose(rows, slip_target_ppm=8.0)
+    assert res["value"] == 50
+    assert {t["value"]: round(t["max_failure_rate"], 4) for t in res["table"]} == {50: 0.0028, 80: 0.0278}
