@@ -21,6 +21,9 @@ Heavy modules (CasADi) are imported lazily: ``from control.mpc import NonlinearM
 """
 from __future__ import annotations
 
+# marks this package as scr-dosing's (python-control shares the name `control`: scr_env.installation)
+__scr_dosing_package__ = True
+
 from control.baselines import FeedforwardDosing, FeedforwardPI, LookupTableDosing, feedforward_dose_g_s
 from control.evaluation import EpisodeResult, comparison_table, evaluate, summarise
 from control.protocol import PolicyPredictor, action_to_rate, check_observation, rate_to_action

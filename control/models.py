@@ -32,43 +32,21 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import casadi as ca
-import numba
 import numpy as np
 
 from control.estimation import ObservationEKF, PrivilegedState
 from control.signals import ModelSignals
-from scr_env.constants import EXHAUST_HEAT_CAPACITY_J_KG_K, EXHAUST_MOLAR_MASS_KG_MOL, NH3_MOL_PER_G_ADBLUE
+from scr_env.jit import njit
 from scr_env.params import DosingParams, P
-from scr_env.physics.backends import casadi_functions, cell_balance_nb
+from scr_env.physics.backends import casadi_functions, cell_balance_nb, numpy_namespace
+from scr_env.physics.dosing import MIN_FLOW_PER_SITE_1_S as _MIN_Q
+from scr_env.physics.kernel import thermal_trajectory
 
 _KIN = slice(P["a_ads"], P["o2_order_ox"] + 1)
-_EXP_CP = EXHAUST_MOLAR_MASS_KG_MOL * EXHAUST_HEAT_CAPACITY_J_KG_K
-_MIN_Q = 1e-12
 _N_K = 9  # rate constants per cell
 
 
-@numba.njit(cache=True)
-def _thermal_sequence(temps: np.ndarray, flow: np.ndarray, t_in: np.ndarray, c: float, ua: float, loss: float,
-                      t_amb: float, dt: float, exp_cp: float) -> np.ndarray:
-    """Solid temperatures [K] after each of len(flow) steps (rows): the kernel's closed-form implicit Euler of the
-    thermal balance, cells in flow order."""
-    n = temps.size
-    out = np.empty((flow.size, n))
-    t = temps.copy()
-    for k in range(flow.size):
-        mcp = flow[k] * exp_cp
-        decay = np.exp(-ua / mcp) if mcp > 0 else 0.0
-        coupling = mcp * (1.0 - decay)
-        t_gas = t_in[k]
-        for j in range(n):
-            t_new = (c * t[j] + dt * (coupling * t_gas + loss * t_amb)) / (c + dt * (coupling + loss))
-            t[j] = t_new
-            t_gas = t_new + (t_gas - t_new) * decay
-        out[k] = t
-    return out
-
-
-@numba.njit(cache=True)
+@njit
 def _safe_coverage(k: np.ndarray, q: float, target: float) -> float:
     """Coverage whose desorption into NH3- and NOx-free gas gives the mole fraction ``target`` (bisection)."""
     lo, hi = 0.0, 1.0
@@ -194,10 +172,8 @@ class FirstPrinciplesModel:
         return float(_safe_coverage(self._constants(np.array([temperature_k]))[0], q, self.safe_slip_ppm * 1e-6))
 
     def _temperatures(self, temps: np.ndarray, rows: np.ndarray, dt: float) -> np.ndarray:
-        p = self._params
-        return _thermal_sequence(temps, np.ascontiguousarray(rows[:, 0]), np.ascontiguousarray(rows[:, 1]),
-                                 p[P["heat_capacity_per_cell_j_k"]], p[P["gas_solid_ua_per_cell_w_k"]],
-                                 p[P["ambient_loss_per_cell_w_k"]], p[P["ambient_temperature_k"]], dt, _EXP_CP)
+        return thermal_trajectory(temps, np.ascontiguousarray(rows[:, 0]), np.ascontiguousarray(rows[:, 1]),
+                                  self._params, dt)
 
     def make_estimator(self) -> PrivilegedState:
         """The oracle's state estimator: the simulator's own coverages (privileged)."""
@@ -216,12 +192,11 @@ class FirstPrinciplesModel:
         # stage temperatures: the held stage disturbance over n_sub intervals of dt (end of each stage)
         temps = self._temperatures(temps0, np.repeat(disturbances, n_sub, axis=0), dt)[n_sub - 1::n_sub]
         flow, t_in, nox, no2f = disturbances.T
-        eta = 1.0 / (1.0 + np.exp(-(t_in - dose.decomposition_t50_k) / dose.decomposition_width_k))
         pst = np.empty((H, self.n_stage_params))
-        pst[:, 0] = np.maximum(flow / sites, _MIN_Q)
-        pst[:, 1] = eta * NH3_MOL_PER_G_ADBLUE / np.maximum(flow, _MIN_Q * sites)
-        pst[:, 2] = nox * 1e-6 * (1.0 - no2f)
-        pst[:, 3] = nox * 1e-6 * no2f
+        # the plant's inlet gas (scr_env.physics.dosing) for 1 g/s of AdBlue: y_nh3 is linear in the dose, which the
+        # NLP keeps within the injector limit
+        pst[:, 0], pst[:, 1], pst[:, 2], pst[:, 3] = numpy_namespace().inlet_conditions(
+            flow, t_in, nox, no2f, 1.0, np.inf, dose.decomposition_t50_k, dose.decomposition_width_k, sites)[:4]
         pst[:, 4:] = self._constants(temps.ravel()).reshape(H, n * _N_K)
         t_hot = np.maximum(temps.max(axis=0), temps0)
         # hottest temperature further ahead, from the cycle preview (privileged) if the model is given one

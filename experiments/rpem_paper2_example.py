@@ -21,11 +21,11 @@ import argparse
 from collections.abc import Sequence
 
 import numpy as np
-from numba import njit
 
 from control.plots import pyplot
 from experiments._runs import run_folder, save_figure, write_json
 from ident.rpem import PAPER2_TERMS, RecursivePEM
+from scr_env.jit import njit
 
 THETA_TRUE = np.array([0.0, 2.0, -1.0, 0.0, -1.0, -1.0, 0.0, 0.0])
 THETA_START = np.array([0.0, 0.5, -0.5, 0.0, -0.25, 0.0, 0.0, 0.0])

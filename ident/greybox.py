@@ -41,15 +41,14 @@ write and read the fitted model in :mod:`ident.io`'s open format (kind ``"storag
 """
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import casadi as ca
 import numpy as np
 from scipy.optimize import least_squares
 
-from ident.base import as_2d, check_is_fitted, check_same_length
-from ident.io import load_model, register_model, save_model
+from ident.base import BaseEstimator, as_2d, check_is_fitted, check_same_length
+from ident.io import register_model
 from scr_env.constants import (
     ATMOSPHERIC_PRESSURE_PA,
     EXHAUST_HEAT_CAPACITY_J_KG_K,
@@ -71,6 +70,9 @@ N_PARAMS = 11
 N_INPUTS, N_OUTPUTS = 4, 3
 #: samples a fit needs in all: more than N_PARAMS, so that even the NOx residuals alone outnumber the parameters
 MIN_FIT_SAMPLES = N_PARAMS + 1
+#: most cells in series: the symbolic model grows with the cell count (a bound, so a damaged file or a typo such as
+#: n_cells=1e6 gets a clear error instead of building a graph for hours); the thesis-scale models use 1 to 5
+MAX_N_CELLS = 100
 _T_MIN_K = 200.0  # lower end of the temperatures the model is evaluated at (guards 1/T; far below any exhaust)
 
 
@@ -85,7 +87,7 @@ def _numeric(name: str, a: Any) -> np.ndarray:
 
 
 @register_model("storage_greybox")
-class StorageGreyBox:
+class StorageGreyBox(BaseEstimator):
     """Grey-box SCR storage model (module docstring), scikit-learn style.
 
     Parameters
@@ -201,9 +203,17 @@ class StorageGreyBox:
 
     def _check_settings(self) -> None:
         n, dt = self.n_cells, self.dt
-        if isinstance(n, bool) or int(n) != n or n < 1:
-            raise ValueError(f"n_cells must be a positive integer, got {n!r}")
-        if not (np.isfinite(dt) and dt > 0):
+        try:
+            ok = not isinstance(n, bool) and int(n) == n and 1 <= n <= MAX_N_CELLS
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise ValueError(f"n_cells must be an integer from 1 to {MAX_N_CELLS} (cells in series), got {n!r}")
+        try:
+            ok = not isinstance(dt, bool) and np.isfinite(float(dt)) and float(dt) > 0
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
             raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
 
     @staticmethod
@@ -308,23 +318,10 @@ class StorageGreyBox:
 
     @classmethod
     def _from_state(cls, meta: dict, arrays: dict[str, np.ndarray]) -> StorageGreyBox:
-        m = cls.from_params(arrays["params"], arrays["sensor_gains"], n_cells=int(meta["n_cells"]),
-                            dt=float(meta["dt"]))
+        m = cls.from_params(arrays["params"], arrays["sensor_gains"], n_cells=meta["n_cells"], dt=meta["dt"])
         m.max_nfev, m.nh3_weight = int(meta.get("max_nfev", m.max_nfev)), float(meta.get("nh3_weight", m.nh3_weight))
         if "cost" in meta:
             m.cost_ = float(meta["cost"])
-        return m
-
-    def save(self, path: str | Path) -> Path:
-        """Write ``<path>.json`` + ``<path>.npz`` (:func:`ident.io.save_model`); return the JSON path."""
-        return save_model(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> StorageGreyBox:
-        """Read a model written by :meth:`save` (:func:`ident.io.load_model`; kind ``"storage_greybox"``)."""
-        m = load_model(path)
-        if not isinstance(m, cls):
-            raise TypeError(f"{path} holds a {type(m).__name__}, not a {cls.__name__}")
         return m
 
     def desorption_ppm(self, theta: ca.SX, t_k: ca.SX, flow_mol_s: float) -> ca.SX:

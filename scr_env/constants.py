@@ -14,6 +14,7 @@ UREA_MOLAR_MASS_KG_MOL: float = 0.06006  # kg/mol, CO(NH2)2
 NH3_PER_UREA: float = 2.0  # mol NH3 per mol urea (thermolysis to NH3 + HNCO, then HNCO hydrolysis)
 NH3_MOLAR_MASS_G_MOL: float = 17.031  # g/mol
 NO2_MOLAR_MASS_G_MOL: float = 46.0055  # g/mol; NOx mass is reported as NO2 equivalent (Regulation 49)
+N2O_MOLAR_MASS_G_MOL: float = 44.013  # g/mol
 # mol NH3 released by one gram of AdBlue after full decomposition: 0.325 / 60.06 * 2 = 0.010823 mol/g (PHYSICS.md 3)
 NH3_MOL_PER_G_ADBLUE: float = ADBLUE_UREA_MASS_FRACTION / (UREA_MOLAR_MASS_KG_MOL * 1000.0) * NH3_PER_UREA
 

@@ -149,7 +149,7 @@ def make_config(cycle: Any = "whtc", catalyst: Any = "cu_zeolite", dt: float = 0
     ageing = _number("ageing", ageing, 0.0, 1.0)
     dosing = DosingParams() if dosing is None else dosing
     if not isinstance(dosing, DosingParams):
-        raise ValueError(f"dosing must be a DosingParams, got {type(dosing).__name__}")  # noqa: TRY004
+        raise ValueError(f"dosing must be a DosingParams, got {type(dosing).__name__}")  # noqa: TRY004 (contract)
     sensors = SensorParams() if sensors is None else sensors
     if not isinstance(sensors, SensorParams):
         raise ValueError(f"sensors must be a SensorParams, got {type(sensors).__name__}")  # noqa: TRY004

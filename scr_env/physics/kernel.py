@@ -34,19 +34,20 @@ import math
 import numba
 import numpy as np
 
-from scr_env.constants import (
-    EXHAUST_HEAT_CAPACITY_J_KG_K,
-    EXHAUST_MOLAR_MASS_KG_MOL,
-    NH3_MOL_PER_G_ADBLUE,
-)
-from scr_env.params import DosingParams, SensorParams
+from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+from scr_env.jit import njit
+from scr_env.params import PACKED_FIELDS, DosingParams, P, SensorParams
 from scr_env.physics.backends import (
     FASTMATH,
     arrhenius_constants_nb,
     cell_balance_nb,
-    decomposition_efficiency_nb,
+    cell_temperature_step_nb,
+    gas_solid_exchange_nb,
+    inlet_conditions_nb,
     o2_factors_nb,
 )
+from scr_env.physics.dosing import MIN_FLOW_PER_SITE_1_S
+from scr_env.physics.thermal import EXHAUST_MOLAR_HEAT_CAPACITY_J_MOL_K
 
 INPUT_FIELDS = (
     "exhaust_flow_mol_s",  # mol/s
@@ -88,6 +89,15 @@ AUX_FIELDS = (
     "nh3_sensor_time_constant_s", "nh3_sensor_noise_ppm",
 )
 N_AUX = len(AUX_FIELDS)
+(X_MAX_RATE, X_DECOMPOSITION_T50, X_DECOMPOSITION_WIDTH, X_NOX_NO2_GAIN, X_NOX_NH3_GAIN, X_NOX_TAU, X_NOX_NOISE,
+ X_UPSTREAM_NOX_NOISE, X_TEMPERATURE_TAU, X_TEMPERATURE_NOISE, X_FLOW_NOISE, X_NH3_TAU, X_NH3_NOISE) = range(N_AUX)
+N_PACKED = len(PACKED_FIELDS)  # columns of the packed catalyst parameters (scr_env.params.pack)
+# the packed columns the non-chemistry parts of the step read, by name (scr_env.params.P)
+_P_SITES = P["sites_per_cell_mol"]
+_P_HEAT_CAPACITY = P["heat_capacity_per_cell_j_k"]
+_P_UA = P["gas_solid_ua_per_cell_w_k"]
+_P_LOSS = P["ambient_loss_per_cell_w_k"]
+_P_AMBIENT = P["ambient_temperature_k"]
 
 # The implicit solve stops when its residual, a flux per site [1/s], is below _FLUX_TOL times the net nitrogen flux
 # of the cell (fed and stored) plus _GROSS_TOL times its gross adsorption flux (r[2] (q + k_ads) bounds adsorption
@@ -103,19 +113,19 @@ _GROSS_TOL = 1e-10  # - [chosen, see above]
 _STEADY_FLUX_TOL = 1e-14  # - [chosen: a few tens of ulps, above the rounding floor of the residual]
 _BRACKET_TOL = 4.0 * 2.220446049250313e-16  # relative width of a collapsed bracket (a few ulps of theta) [-]
 _NEWTON_MAX_IT = 100
-_MIN_Q = 1e-12  # 1/s: floor of flow per site, keeps the algebra defined at zero flow
-_EXP_CP = EXHAUST_MOLAR_MASS_KG_MOL * EXHAUST_HEAT_CAPACITY_J_KG_K  # J/(mol K) of exhaust
+_MIN_Q = MIN_FLOW_PER_SITE_1_S  # 1/s: floor of flow per site (scr_env.physics.dosing)
+_EXP_CP = EXHAUST_MOLAR_HEAT_CAPACITY_J_MOL_K  # J/(mol K) of exhaust (scr_env.physics.thermal)
 _NH3_PER_G = NH3_MOL_PER_G_ADBLUE
 
 
 def pack_aux(dosing: DosingParams, sensors: SensorParams) -> np.ndarray:
     """Pack dosing and sensor parameters in the order of :data:`AUX_FIELDS`."""
-    values = {**{k: getattr(dosing, k) for k in ("max_rate_g_s", "decomposition_t50_k", "decomposition_width_k")},
-              **{k: getattr(sensors, k) for k in AUX_FIELDS[3:]}}
+    values = {**{k: getattr(dosing, k) for k in AUX_FIELDS[:X_NOX_NO2_GAIN]},
+              **{k: getattr(sensors, k) for k in AUX_FIELDS[X_NOX_NO2_GAIN:]}}
     return np.array([values[k] for k in AUX_FIELDS], dtype=np.float64)
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True, inline="always")
+@njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), inline="always")
 def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_des, e_des_gamma, k_std, k_fast,
                    k_no2, k_ox, k_ox_no, k_n2o):
     """Root in [0, 1] of R(theta) = (theta - theta_old) inv_dt - g(theta), and :func:`cell_balance` there.
@@ -174,10 +184,10 @@ def solve_coverage(theta_old, inv_dt, q, y_nh3_in, y_no_in, y_no2_in, k_ads, k_d
 # argument otherwise costs two atomic updates of the reference count of the one buffer shared by all plants, which
 # made the threads of the parallel loop fight over one cache line (measured: a fifth of the serial step time went
 # to NRT_incref/NRT_decref, and the parallel step scaled far below 2x on 2 cores).
-_NO_REFCOUNT = {"nogil": True, "error_model": "numpy", "fastmath": set(FASTMATH), "cache": True, "_nrt": False}
+_NO_REFCOUNT = {"nogil": True, "error_model": "numpy", "fastmath": set(FASTMATH), "_nrt": False}
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True, inline="always")
+@njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), inline="always")
 def _chemistry_row(theta, temperature_k, b, q, y_nh3_in, y_no_in, y_no2_in, o2_fraction, inv_dt, p):
     """:func:`catalyst_chemistry` of row ``b`` of (B, N) states and (B, len(PACKED_FIELDS)) parameters."""
     n = theta.shape[1]
@@ -208,7 +218,7 @@ def _chemistry_row(theta, temperature_k, b, q, y_nh3_in, y_no_in, y_no2_in, o2_f
     return y_no, y_no2, y_nh3, y_n2o, n2_per_site
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True)
+@njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH))
 def catalyst_chemistry(theta, temperature_k, q, y_nh3_in, y_no_in, y_no2_in, o2_fraction, inv_dt, p):
     """Advance the coverage of every cell (in place) at given cell temperatures.
 
@@ -219,47 +229,32 @@ def catalyst_chemistry(theta, temperature_k, q, y_nh3_in, y_no_in, y_no2_in, o2_
                           o2_fraction, inv_dt, p[np.newaxis, :])
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True, inline="always")
+@njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), inline="always")
 def _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     n = theta.shape[1]
-    sites = cat_params[b, 1]
-    heat_cap = cat_params[b, 2]
-    ua = cat_params[b, 3]
-    loss = cat_params[b, 4]
-    t_amb = cat_params[b, 5]
+    sites = cat_params[b, _P_SITES]
     flow = inputs[b, I_FLOW]
     t_in = inputs[b, I_TIN]
-    nox_in = inputs[b, I_NOX] * 1e-6
-    no2_frac = inputs[b, I_NO2F]
-    adblue = min(max(inputs[b, I_ADBLUE], 0.0), aux_params[b, 0])
-    o2 = inputs[b, I_O2]
 
-    # --- thermal: implicit Euler per cell in flow order ---------------------------------------------------------
-    mcp = flow * _EXP_CP  # W/K
+    # --- thermal: implicit Euler per cell in flow order (scr_env.physics.thermal) --------------------------------
+    coupling, decay = gas_solid_exchange_nb(flow, cat_params[b, _P_UA])
+    heat_cap = cat_params[b, _P_HEAT_CAPACITY]
+    loss = cat_params[b, _P_LOSS]
+    t_amb = cat_params[b, _P_AMBIENT]
     t_gas = t_in
-    if mcp > 0.0:
-        decay = math.exp(-ua / mcp)
-    else:
-        decay = 0.0
-    coupling = mcp * (1.0 - decay)
     for j in range(n):
-        t_new = ((heat_cap * temperature_k[b, j] + dt * (coupling * t_gas + loss * t_amb))
-                 / (heat_cap + dt * (coupling + loss)))
+        t_new, t_gas = cell_temperature_step_nb(temperature_k[b, j], t_gas, heat_cap, coupling, loss, t_amb, dt,
+                                                decay)
         temperature_k[b, j] = t_new
-        t_gas = t_new + (t_gas - t_new) * decay
 
-    # --- urea decomposition upstream of the brick ---------------------------------------------------------------
-    eta = decomposition_efficiency_nb(t_in, aux_params[b, 1], aux_params[b, 2])
-    nh3_mol_s = eta * adblue * _NH3_PER_G
-    urea_n_mol_s = (1.0 - eta) * adblue * _NH3_PER_G  # 2 N per urea, same count as NH3 equivalents
-    q = max(flow / sites, _MIN_Q)
-    safe_flow = max(flow, _MIN_Q * sites)
-    y_nh3_in = nh3_mol_s / safe_flow
+    # --- urea decomposition upstream of the brick, gas at the catalyst face (scr_env.physics.dosing) --------------
+    q, y_nh3_in, y_no_in, y_no2_in, nh3_mol_s, urea_n_mol_s = inlet_conditions_nb(
+        flow, t_in, inputs[b, I_NOX], inputs[b, I_NO2F], inputs[b, I_ADBLUE], aux_params[b, X_MAX_RATE],
+        aux_params[b, X_DECOMPOSITION_T50], aux_params[b, X_DECOMPOSITION_WIDTH], sites)
 
     # --- chemistry --------------------------------------------------------------------------------------------
     y_no, y_no2, y_nh3, y_n2o, n2_per_site = _chemistry_row(
-        theta, temperature_k, b, q, y_nh3_in, nox_in * (1.0 - no2_frac), nox_in * no2_frac, o2, 1.0 / dt,
-        cat_params)
+        theta, temperature_k, b, q, y_nh3_in, y_no_in, y_no2_in, inputs[b, I_O2], 1.0 / dt, cat_params)
     no_ppm = y_no * 1e6
     no2_ppm = y_no2 * 1e6
     nh3_ppm = y_nh3 * 1e6
@@ -278,38 +273,66 @@ def _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_param
     out[b, O_COV] = cov / n
 
     # --- sensors: first-order lags (exact discretisation) plus additive noise ------------------------------------
-    raw_nox = no_ppm + aux_params[b, 3] * no2_ppm + aux_params[b, 4] * nh3_ppm
+    raw_nox = no_ppm + aux_params[b, X_NOX_NO2_GAIN] * no2_ppm + aux_params[b, X_NOX_NH3_GAIN] * nh3_ppm
     s0 = sensor_state[b, 0]
-    s0 += (1.0 - math.exp(-dt / max(aux_params[b, 5], 1e-9))) * (raw_nox - s0)
+    s0 += (1.0 - math.exp(-dt / max(aux_params[b, X_NOX_TAU], 1e-9))) * (raw_nox - s0)
     s1 = sensor_state[b, 1]
-    s1 += (1.0 - math.exp(-dt / max(aux_params[b, 11], 1e-9))) * (nh3_ppm - s1)
+    s1 += (1.0 - math.exp(-dt / max(aux_params[b, X_NH3_TAU], 1e-9))) * (nh3_ppm - s1)
     s2 = sensor_state[b, 2]
-    s2 += (1.0 - math.exp(-dt / max(aux_params[b, 8], 1e-9))) * (t_in - s2)
+    s2 += (1.0 - math.exp(-dt / max(aux_params[b, X_TEMPERATURE_TAU], 1e-9))) * (t_in - s2)
     sensor_state[b, 0] = s0
     sensor_state[b, 1] = s1
     sensor_state[b, 2] = s2
-    out[b, O_NOX_SENSOR] = max(s0 + aux_params[b, 6] * noise[b, 0], 0.0)
-    out[b, O_NH3_SENSOR] = max(s1 + aux_params[b, 12] * noise[b, 1], 0.0)
-    out[b, O_TIN_SENSOR] = s2 + aux_params[b, 9] * noise[b, 2]
-    out[b, O_UPSTREAM_NOX] = max(inputs[b, I_NOX] + aux_params[b, 7] * noise[b, 3], 0.0)
-    out[b, O_FLOW_EST] = max(flow * (1.0 + aux_params[b, 10] * noise[b, 4]), 0.0)
+    out[b, O_NOX_SENSOR] = max(s0 + aux_params[b, X_NOX_NOISE] * noise[b, 0], 0.0)
+    out[b, O_NH3_SENSOR] = max(s1 + aux_params[b, X_NH3_NOISE] * noise[b, 1], 0.0)
+    out[b, O_TIN_SENSOR] = s2 + aux_params[b, X_TEMPERATURE_NOISE] * noise[b, 2]
+    out[b, O_UPSTREAM_NOX] = max(inputs[b, I_NOX] + aux_params[b, X_UPSTREAM_NOX_NOISE] * noise[b, 3], 0.0)
+    out[b, O_FLOW_EST] = max(flow * (1.0 + aux_params[b, X_FLOW_NOISE] * noise[b, 4]), 0.0)
 
 
-@numba.njit(**_NO_REFCOUNT)
+@njit(**_NO_REFCOUNT)
 def _plant_step_b(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     _plant_step_one(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), cache=True)
+@njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH))
 def _plant_step_serial(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     for b in range(theta.shape[0]):
         _plant_step_b(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), parallel=True, cache=True)
+@njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), parallel=True)
 def _plant_step_parallel(theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out):
     for b in numba.prange(theta.shape[0]):
-        _plant_step_b(b, theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
+        _plant_step_b(np.int64(b), theta, temperature_k, sensor_state, inputs, dt, cat_params, aux_params, noise, out)
+
+
+# fastmath=False on purpose: the MPC's temperature forecasts (control.models.FirstPrinciplesModel) were computed
+# without the fast-math flags before the heat balance had one source, and keeping them so keeps the oracle's closed
+# loop bit for bit; they differ from the plant's fast-math step by rounding only (1e-11 K over a WHTC).
+@njit(nogil=True, error_model="numpy", fastmath=False)
+def thermal_trajectory(temperature_k: np.ndarray, flow_mol_s: np.ndarray, inlet_temperature_k: np.ndarray,
+                       cat_params: np.ndarray, dt: float) -> np.ndarray:
+    """Solid temperatures [K] of the cells after each of ``len(flow_mol_s)`` steps of ``dt`` seconds (rows), from
+    ``temperature_k`` (N,) under the given exhaust flow [mol/s] and SCR inlet temperature [K] per step: the plant's
+    heat balance (:func:`scr_env.physics.thermal.cell_temperature_step`, cells in flow order) on its own, for
+    forecasts. The temperatures do not depend on the dosing. ``cat_params``: one packed catalyst
+    (:func:`scr_env.params.pack`)."""
+    n = temperature_k.size
+    heat_cap = cat_params[_P_HEAT_CAPACITY]
+    ua = cat_params[_P_UA]
+    loss = cat_params[_P_LOSS]
+    t_amb = cat_params[_P_AMBIENT]
+    out = np.empty((flow_mol_s.size, n))
+    t = temperature_k.copy()
+    for k in range(flow_mol_s.size):
+        coupling, decay = gas_solid_exchange_nb(flow_mol_s[k], ua)
+        t_gas = inlet_temperature_k[k]
+        for j in range(n):
+            t_new, t_gas = cell_temperature_step_nb(t[j], t_gas, heat_cap, coupling, loss, t_amb, dt, decay)
+            t[j] = t_new
+        out[k] = t
+    return out
 
 
 PARALLEL_MIN_BATCH = 64  # below this, thread start-up costs more than it saves

@@ -7,6 +7,7 @@ import pytest
 from control.evaluation import evaluate
 from control.models import IdentifiedModelAdapter
 from control.mpc import NonlinearMPC
+from ident.base import NotFittedError
 from ident.greybox import StorageGreyBox
 
 PARAMS = np.array([0.1, -0.2, 0.3, 0.02, -0.1, 0.2, 0.05, 0.1, -0.3, 1.0, 0.0])
@@ -51,7 +52,7 @@ def test_implicit_stage_is_zero_at_a_steady_state():
 
 
 def test_unfitted_model_raises_on_implicit_stage():
-    with pytest.raises(RuntimeError, match="fit"):
+    with pytest.raises(NotFittedError, match="fit"):
         StorageGreyBox().implicit_stage(ca.DM.zeros(3), ca.DM.zeros(3), ca.DM.zeros(4), 1.0)
 
 
@@ -213,7 +214,7 @@ def test_from_params_checks_the_numbers():
         StorageGreyBox.from_params(np.r_[np.zeros(10), np.nan], np.array([0.95, 1.0]))
     with pytest.raises(ValueError, match="sensor_gains must be 2 finite numbers"):
         StorageGreyBox.from_params(PARAMS, np.array([0.95]))
-    with pytest.raises(ValueError, match="n_cells must be a positive integer"):
+    with pytest.raises(ValueError, match="n_cells must be an integer from 1 to 100"):
         StorageGreyBox.from_params(PARAMS, np.array([0.95, 1.0]), n_cells=0)
 
 
