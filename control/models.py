@@ -37,13 +37,14 @@ import numpy as np
 from control.estimation import ObservationEKF, PrivilegedState
 from control.signals import ModelSignals
 from scr_env.jit import njit
-from scr_env.params import DosingParams, P
+from scr_env.params import KINETIC_SLICE, DosingParams, P
 from scr_env.physics.backends import casadi_functions, cell_balance_nb, numpy_namespace
+from scr_env.physics.cell import N_RATE_CONSTANTS
 from scr_env.physics.dosing import MIN_FLOW_PER_SITE_1_S as _MIN_Q
 from scr_env.physics.kernel import thermal_trajectory
 
-_KIN = slice(P["a_ads"], P["o2_order_ox"] + 1)
-_N_K = 9  # rate constants per cell
+_KIN = KINETIC_SLICE
+_N_K = N_RATE_CONSTANTS  # rate constants per cell
 
 
 @njit
@@ -52,7 +53,8 @@ def _safe_coverage(k: np.ndarray, q: float, target: float) -> float:
     lo, hi = 0.0, 1.0
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        y = cell_balance_nb(mid, q, 0.0, 0.0, 0.0, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7], k[8])[2]
+        y = cell_balance_nb(mid, q, 0.0, 0.0, 0.0, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7], k[8], k[9], k[10],
+                            k[11], k[12], k[13])[2]
         if y < target:
             lo = mid
         else:
@@ -61,7 +63,7 @@ def _safe_coverage(k: np.ndarray, q: float, target: float) -> float:
 
 
 def _rate_constants_function(params: np.ndarray, o2_fraction: float) -> ca.Function:
-    """Function mapping a row of temperatures [K] to the (9, n) rate constants of cell_balance."""
+    """Function mapping a row of temperatures [K] to the (N_RATE_CONSTANTS, n) rate constants of cell_balance."""
     rate_constants = casadi_functions()[1]
     t = ca.SX.sym("t")
     k = ca.vertcat(*rate_constants(t, o2_fraction, *[float(v) for v in params[_KIN]]))

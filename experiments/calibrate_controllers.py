@@ -9,6 +9,8 @@ at load steps, a full store slips at the next heat-up. The knob per controller (
 * ``identified`` (grey-box NMPC, no preview): the terminal value of stored NH3 [g AdBlue equivalent per mol];
 * ``identified_preview`` (the same NMPC with the cycle preview of the engine-out disturbances): the same knob;
 * ``identified_nh3`` (``identified_preview`` whose EKF also reads a tailpipe NH3 sensor): the same knob;
+* ``lookup_table`` (the industrial baseline, :class:`control.baselines.LookupTableDosing`): the window level
+  ``anr_scale`` of its ANR map;
 * ``oracle`` (first-principles NMPC with the cycle preview): the *safe slip* [ppm] that sets its safe coverage,
   the coverage whose desorption at the hottest temperature of the next 120 s gives that slip (terminal penalty
   above it; the storage value stays at its 200 g/mol): the oracle's slip handling, chosen to use the slip budget.
@@ -36,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from control.baselines import LookupTableDosing
 from control.factory import IDENT_EXCITATION, IDENT_SEEDS, greybox_record, identified_mpc, oracle_mpc
 from experiments._runs import run_folder, save_results
 from experiments.sweep import add_arguments, from_args, run_sweep
@@ -44,7 +47,8 @@ from experiments.sweep import add_arguments, from_args, run_sweep
 KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "identified_preview": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "identified_nh3": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
-         "oracle": ("safe_slip_ppm", (50.0, 60.0, 70.0, 80.0, 90.0, 100.0))}
+         "oracle": ("safe_slip_ppm", (50.0, 60.0, 70.0, 80.0, 90.0, 100.0)),
+         "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
 DEFAULT_SEEDS = (5, 6, 7, 8)
 SLIP_TARGET_PPM = 8.0
 #: the rule also asks for fewer failed solves than this share of the steps on every calibration cycle: a
@@ -63,6 +67,8 @@ def _controller(kind: str, value: float, model: Any, rescue: bool = True) -> Any
         return identified_mpc(model, storage_value_g_per_mol=value, preview=True, nh3_sensor=True, rescue=rescue)
     if kind == "oracle":
         return oracle_mpc(safe_slip_ppm=value)
+    if kind == "lookup_table":
+        return LookupTableDosing(anr_scale=value)
     raise ValueError(f"controller must be one of {sorted(KNOBS)}, got {kind!r}")
 
 
@@ -179,7 +185,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         print(f"\n{c}: {KNOBS[c][0]} -> mean tailpipe NOx [g/kWh], worst mean slip [ppm], failed / rescued / all "
               "solves, solve time median / worst p95 [ms]")
         for t in res["table"]:
-            print(f"  {t['value']:7.1f}  {t['mean_tailpipe_nox_g_per_kwh']:.3f}  {t['max_mean_nh3_slip_ppm']:6.2f}  "
+            print(f"  {t['value']:7.4g}  {t['mean_tailpipe_nox_g_per_kwh']:.3f}  {t['max_mean_nh3_slip_ppm']:6.2f}  "
                   f"{t['solver_failures']:5.0f} / {t['solver_rescued']:4.0f} / {t['solves']:6.0f}  "
                   f"{t['solve_time_ms_median']:6.1f} / {t['solve_time_ms_p95']:6.1f}")
         print(f"  rule (lowest mean NOx with worst-cycle mean slip <= {args.slip_target:g} ppm and failed solves "

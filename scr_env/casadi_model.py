@@ -39,13 +39,13 @@ from typing import Literal
 
 import casadi as ca
 
-from scr_env.params import CatalystParams, DosingParams, P, pack
+from scr_env.params import KINETIC_SLICE, CatalystParams, DosingParams, P, pack
 from scr_env.physics.backends import casadi_functions, casadi_namespace
 from scr_env.physics.kernel import I_ADBLUE, I_FLOW, I_NO2F, I_NOX, I_TIN, INPUT_FIELDS
 
 OUTPUT_NAMES = ("tailpipe_no_ppm", "tailpipe_no2_ppm", "tailpipe_nh3_ppm", "tailpipe_n2o_ppm", "outlet_temperature_k")
 N_INPUTS = len(INPUT_FIELDS)
-_KINETIC = slice(P["a_ads"], P["o2_order_ox"] + 1)  # packed kinetic parameters, the arguments of rate_constants
+_KINETIC = KINETIC_SLICE  # packed kinetic parameters, the arguments of rate_constants
 _NEWTON_ABSTOL = 1e-14  # -, implicit-Euler residual of a cell relative to the N fed to it (the kernel stops at 1e-7
 # and ends on the conservative state, scr_env.physics.kernel._FLUX_TOL; the agreement test allows for that)
 _NEWTON_STEPTOL = 1e-16  # -, Newton step on the coverage (stops at the rounding floor)
@@ -94,7 +94,7 @@ class _Plant:
             r = self.cell_balance(theta[j], q, y_nh3, y_no, y_no2, *self.constants(temps[j], u[5]))
             g.append(r[0])
             y_nh3, y_no, y_no2 = r[2], r[3], r[4]
-            y_n2o = y_n2o + r[10] / q
+            y_n2o = y_n2o + r[5] / q  # N2O formed per site
         return g, [y_no, y_no2, y_nh3, y_n2o]
 
     def outputs(self, theta: list, temps: list, u: ca.SX | ca.MX) -> tuple[list, ca.SX | ca.MX]:

@@ -39,7 +39,7 @@ from scr_env.envs.kpis import (  # noqa: F401  (the reward and KPI names, re-exp
     episode_kpis,
 )
 from scr_env.jit import njit
-from scr_env.params import P, aged, pack, randomised
+from scr_env.params import P, pack
 from scr_env.physics import kernel as K
 
 if TYPE_CHECKING:
@@ -373,15 +373,14 @@ class PlantBatch:
                       first_row: np.ndarray, cold: bool, coverage: float) -> None:
         """Begin an episode of plant ``i``: the one reset of the single and the vector environment.
 
-        The catalyst is ``base_params`` (packed), or with ``config.randomize`` a new draw from ``rng``
-        (:func:`scr_env.params.randomised`, then ``config.ageing``); every cell at NH3 coverage ``coverage`` and at
-        ambient temperature (``cold``) or at the inlet temperature of ``first_row`` (a row of
+        The catalyst is ``base_params`` (packed), or with ``config.randomize`` or an ``age_h`` range a new draw from
+        ``rng`` (:meth:`EnvConfig.episode_catalyst`); every cell at NH3 coverage ``coverage`` and at ambient
+        temperature (``cold``) or at the inlet temperature of ``first_row`` (a row of
         :func:`drive_table`); the sensors settled on that row's readings (no NH3), the accumulators at zero, and the
         observation before the first step (previous action -1, no dosing).
         """
-        if config.randomize > 0:
-            cat = randomised(config.catalyst, rng, config.randomize)
-            self.cat_params[i] = pack(aged(cat, config.ageing) if config.ageing > 0 else cat)
+        if config.randomizes:
+            self.cat_params[i] = pack(config.episode_catalyst(rng))
         else:
             self.cat_params[i] = base_params
         t0 = float(first_row[D_TIN])

@@ -97,7 +97,8 @@ class UreaSCREnv(gym.Env):
     | cycle | "whtc" | "whtc", "whsc", "random" (new seeded cycle each reset), a CSV path, or an ExhaustTrace |
     | catalyst | "cu_zeolite" | preset name or :class:`~scr_env.params.CatalystParams` |
     | dt | 0.5 | control interval [s] (the thesis data: 0.5 s) |
-    | ageing | 0.0 | catalyst ageing severity in [0, 1] (:func:`scr_env.params.aged`) |
+    | age_h | 0.0 | catalyst hydrothermal ageing [h], 0-16 (the CLEERS samples), or (lo, hi) drawn per reset |
+    | ageing | 0.0 | older form: ageing severity in [0, 1] = age_h / 16 (:func:`scr_env.params.aged`) |
     | sensor_noise | True | False removes sensor noise (lags stay) |
     | sensors, dosing | defaults | :class:`~scr_env.params.SensorParams`, :class:`~scr_env.params.DosingParams` |
     | reward_weights | None | dict with keys nox, nh3, adblue |

@@ -372,6 +372,12 @@ class UreaSCRVectorEnv(VectorEnv):
         """Privileged states of all plants (copies): coverages and temperatures, shape (num_envs, n_cells)."""
         return {"nh3_coverage": self._batch.theta.copy(), "temperature_k": self._batch.temperature_k.copy()}
 
+    @property
+    def catalyst_params_array(self) -> np.ndarray:
+        """Packed parameters of every plant's catalyst in this episode (after ageing and randomisation), shape
+        (num_envs, len(scr_env.params.PACKED_FIELDS)) (a copy)."""
+        return self._batch.cat_params.copy()
+
     def close_extras(self, **kwargs: Any) -> None:
         pass
 

@@ -37,7 +37,8 @@ def _select_scalar(condition: bool, if_true: float, if_false: float) -> float:
 
 
 # The one-source functions, in dependency order (a function may call those before it).
-_SOURCES = ("o2_factors", "arrhenius_constants", "rate_constants", "cell_balance", "decomposition_efficiency")
+_SOURCES = ("o2_factors", "no_oxidation_equilibrium", "arrhenius_constants", "rate_constants", "cell_state",
+            "cell_outlets", "cell_slope", "cell_balance", "decomposition_efficiency")
 # The rest of the plant, after the chemistry (dosing calls decomposition_efficiency).
 _PLANT_SOURCES = (
     (_thermal, ("gas_solid_exchange", "gas_outlet_temperature", "cell_temperature_step", "cell_temperature_rate")),
@@ -67,7 +68,7 @@ def _compile_all(namespace: dict[str, Any], wrap: Callable[[Callable], Callable]
 # "__name__" lets numba's on-disk cache re-import the namespace of the rebound functions.
 _NUMBA_NS: dict[str, Any] = {"__name__": __name__, "exp": math.exp, "log": math.log, "sqrt": math.sqrt,
                              "select": _select_scalar, "abs": abs, "fmin": min, "fmax": max}
-# inline="always": numba does not inline across its compiled functions by itself, and a call of cell_balance per
+# inline="always": numba does not inline across its compiled functions by itself, and a call of the cell chemistry per
 # Newton iteration (13 doubles in, an 11-tuple out through memory) cost about a seventh of the plant step.
 # LLVM fast-math flags of every compiled plant function: fused multiply-add, reciprocal multiplication, reassociation
 # and sign-blind zeros. Not "nnan"/"ninf": the kernel tests for non-finite values (actions, solver fall-backs), and
@@ -82,10 +83,26 @@ _NUMBA_NS: dict[str, Any] = {"__name__": __name__, "exp": math.exp, "log": math.
 # code keeps running.
 FASTMATH = frozenset({"contract", "arcp", "reassoc", "nsz"})
 _JIT = {"nogil": True, "fastmath": set(FASTMATH), "error_model": "numpy", "inline": "always"}
-_NB = _compile_all(_NUMBA_NS, njit(**_JIT))
+# Not inlined: what runs at most once per cell and step (the slope only where a Newton step is taken, the outlets,
+# the rate constants) and the combined cell_balance (tests, lab): inlining them into both plant kernels (serial and
+# parallel) made the cold first step 5 s longer (12 -> 17 s, a new process with an empty cache, 2 loaded cores) for
+# no measurable gain; cell_state, in the Newton loop, stays inlined (745 ns per plant step either way on WHTC states,
+# 805 ns with it called).
+_NOT_INLINED = ("cell_slope", "cell_outlets", "cell_balance", "arrhenius_constants")
+
+
+def _wrap_nb(func: Callable) -> Callable:
+    return njit(**dict(_JIT, inline="never" if func.__name__ in _NOT_INLINED else "always"))(func)
+
+
+_NB = _compile_all(_NUMBA_NS, _wrap_nb)
 
 #: numba versions (scalar arguments), used by the compiled plant kernel
 cell_balance_nb = _NB["cell_balance"]
+cell_state_nb = _NB["cell_state"]
+cell_slope_nb = _NB["cell_slope"]
+cell_outlets_nb = _NB["cell_outlets"]
+no_oxidation_equilibrium_nb = _NB["no_oxidation_equilibrium"]
 rate_constants_nb = _NB["rate_constants"]
 arrhenius_constants_nb = _NB["arrhenius_constants"]
 o2_factors_nb = _NB["o2_factors"]

@@ -57,7 +57,10 @@ def test_unfitted_model_raises_on_implicit_stage():
 
 
 def test_nmpc_on_implicit_stage_solves_and_doses():
-    m = StorageGreyBox.from_params(PARAMS, np.array([0.95, 1.0]), n_cells=2)
+    # NOx sensor gain 0.9 of the hand-set model: the plant's catalyst oxidises some NO to NO2 (#20), which the sensor
+    # reads at 0.9, so the reading without NH3 falls a little below the engine-out NOx; with a gain of 0.95 the model
+    # could explain that only by stored NH3, and 11 of the 20 solves hit the iteration limit
+    m = StorageGreyBox.from_params(PARAMS, np.array([0.9, 1.0]), n_cells=2)
     adapter = IdentifiedModelAdapter(m, np.zeros(4), np.ones(4), np.zeros(3), np.ones(3), measurement_noise=100.0,
                                      process_noise=np.array([1e-6, 1e-6, 0.5]),
                                      state_bounds=(np.array([0, 0, 250.0]), np.array([1, 1, 900.0])),
