@@ -89,17 +89,27 @@ def _controllers(results: list[EpisodeResult], cycle: str, seeds: list[int]) -> 
 
 
 def stored_limit_nox(cycle: str, budget_ppm: float = LIMIT_BUDGET_PPM) -> float | None:
-    """HOOK for issue 19 part 3: the clairvoyant limit's tailpipe NOx [g/kWh] on ``cycle`` at ``budget_ppm``, read
-    from the limit results stored in the repository (``control.limit.stored_limit``, the ``limit`` stream's API),
-    never re-solved; None while that API is not there (then ``gap_to_limit`` is reported as None)."""
+    """Issue 19 part 3: the clairvoyant limit's tailpipe NOx [g/kWh] on ``cycle`` at ``budget_ppm``, the replayed
+    optimum of ``control.limit.stored_limit(cycle, budget_ppm)`` (stored in the repository, never re-solved); None
+    without that API, without a stored result for the cycle and budget, or with one solved for another plant
+    (``StaleLimitWarning``): then ``gap_to_limit`` is None."""
+    import warnings
+
     try:
         from control.limit import stored_limit  # type: ignore[attr-defined]
     except ImportError:
         return None
-    rec = stored_limit(cycle, budget_ppm)
-    if rec is None:
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rec = stored_limit(cycle, budget_ppm)
+    except (FileNotFoundError, ValueError):
         return None
-    return float(rec["tailpipe_nox_g_per_kwh"] if isinstance(rec, dict) else rec)
+    if rec is None or any(w.category.__name__ == "StaleLimitWarning" for w in caught):
+        return None
+    nox = rec.get("replay_tailpipe_nox_g_per_kwh", rec.get("tailpipe_nox_g_per_kwh")) if isinstance(rec, dict) \
+        else getattr(rec, "replay_tailpipe_nox_g_per_kwh", None)
+    return None if nox is None or not np.isfinite(nox) else float(nox)
 
 
 def _gaps(ctrl: dict[str, Any], cycle: str) -> dict[str, Any]:

@@ -55,6 +55,7 @@ def _result(name, tp, seed=0, **stats):
 def test_failure_kinds_and_gaps_per_controller(monkeypatch) -> None:
     import sys
     import types
+    import warnings
 
     from control.mpc import FAILURE_KINDS
 
@@ -76,9 +77,26 @@ def test_failure_kinds_and_gaps_per_controller(monkeypatch) -> None:
     # with it: read (never solved) at the 10 ppm budget
     limit = types.ModuleType("control.limit")
     asked = []
-    limit.stored_limit = lambda cycle, budget: asked.append((cycle, budget)) or {"tailpipe_nox_g_per_kwh": 0.1}
+    # (control.limit's LimitResult: the replayed optimum is the figure controllers are compared with)
+    result = types.SimpleNamespace(tailpipe_nox_g_per_kwh=0.09, replay_tailpipe_nox_g_per_kwh=0.1)
+    limit.stored_limit = lambda cycle, budget_ppm: asked.append((cycle, budget_ppm)) or result
     monkeypatch.setitem(sys.modules, "control.limit", limit)
     cb._gaps(ctrl, "whtc")
     assert asked == [("whtc", 10.0)]
     assert ctrl["mpc_identified"]["gap_to_limit"] == pytest.approx(0.6) and ctrl["mpc_oracle"]["gap_to_limit"] == \
         pytest.approx(0.8)
+    # a limit solved for another plant, a missing file or an unstored cycle: no score against it
+    stale = type("StaleLimitWarning", (UserWarning,), {})
+
+    def stale_limit(cycle, budget_ppm):
+        warnings.warn("solved for another plant", stale, stacklevel=2)
+        return result
+
+    def missing(cycle, budget_ppm):
+        raise FileNotFoundError("no stored limit")
+
+    for fake in (stale_limit, missing):
+        limit.stored_limit = fake
+        assert cb.stored_limit_nox("whtc") is None
+        assert cb._gaps(ctrl, "whtc")["limit_tailpipe_nox_g_per_kwh"] is None
+        assert ctrl["mpc_identified"]["gap_to_limit"] is None
