@@ -1,7 +1,8 @@
 """Calibrate each MPC's storage knob on calibration cycles, never on the benchmark cycles.
 
     python -m experiments.calibrate_controllers [--json PATH] [--controller identified identified_preview oracle]
-        [--values V ...] [--seeds 5 6 7 8] [--noise-seeds 0 1 2] [--slip-target 8] [--workers 2] [--no-rescue]
+        [--values V ...] [--seeds 5 6 7 8] [--noise-seeds 0 1 2] [--duration S] [--slip-target 8] [--workers 1]
+        [--no-rescue]
 
 An economic MPC fills the NH3 storage as far as its terminal cost lets it: little storage means NOx breakthrough
 at load steps, a full store slips at the next heat-up. The knob per controller (:data:`KNOBS`):
@@ -19,15 +20,12 @@ Each value is run in closed loop on seeded random cycles (``cycle="random"``, se
 identification records use seeds 1-3, the benchmarks the hot WHTC and WHSC) and the rule of the look-up table's
 calibration (:mod:`control.baselines`) picks it: the lowest mean tailpipe NOx among the values whose mean NH3 slip
 is at most ``--slip-target`` (8 ppm: a 20 % margin below the 10 ppm limit) and whose failed solves stay under 1 %
-of the steps (:data:`MAX_FAILURE_RATE`) on *every* calibration cycle. The
-table also gives each value's failed solves, rescued solves and solve times (the median of the episodes' medians
-and the worst cycle's p95, CPU time of the solving thread). ``--no-rescue`` builds the grey-box NMPCs without their
-IPOPT rescue solver (the comparison that chose it). ``--noise-seeds``: each calibration cycle is run once per
-sensor-noise seed (the same cycle as without the flag, ``reset(seed=noise seed, options={"cycle_seed": ...})``),
-the robustness check of a chosen design. The result and all runs go to
-``runs/calibrate_controllers/<stamp>/``; the chosen numbers are the defaults of :mod:`control.factory`
-(``IDENTIFIED_STORAGE_VALUE``, ``ORACLE_SAFE_SLIP_PPM``, with the command and table that chose them). Re-run it
-whenever the plant changes.
+of the steps (:data:`MAX_FAILURE_RATE`) on *every* calibration cycle. The table also gives failed and rescued
+solves and solve times (median of the episodes' medians, worst p95; CPU time of the solving thread).
+``--no-rescue``: the grey-box NMPCs without their IPOPT rescue solver. ``--noise-seeds``: each cycle once per
+sensor-noise seed (the same cycle, ``reset(seed=noise seed, options={"cycle_seed": ...})``). ``--duration``:
+shorter random cycles (for slow controllers). Results go to ``runs/calibrate_controllers/<stamp>/``; the chosen
+numbers are the defaults of :mod:`control.factory` (with the command and table). Re-run it when the plant changes.
 """
 from __future__ import annotations
 
@@ -59,12 +57,9 @@ MAX_FAILURE_RATE = 0.01
 def _controller(kind: str, value: float, model: Any, rescue: bool = True) -> Any:
     """The controller ``kind`` with its knob at ``value`` (``model``: the fitted grey-box of the identified kinds;
     ``rescue``: their IPOPT rescue solver)."""
-    if kind == "identified":
-        return identified_mpc(model, storage_value_g_per_mol=value, preview=False, nh3_sensor=False, rescue=rescue)
-    if kind == "identified_preview":
-        return identified_mpc(model, storage_value_g_per_mol=value, preview=True, nh3_sensor=False, rescue=rescue)
-    if kind == "identified_nh3":
-        return identified_mpc(model, storage_value_g_per_mol=value, preview=True, nh3_sensor=True, rescue=rescue)
+    if kind in ("identified", "identified_preview", "identified_nh3"):
+        return identified_mpc(model, storage_value_g_per_mol=value, preview=kind != "identified",
+                              nh3_sensor=kind == "identified_nh3", rescue=rescue)
     if kind == "oracle":
         return oracle_mpc(safe_slip_ppm=value)
     if kind == "lookup_table":
@@ -81,10 +76,10 @@ def cycle_seed(seed: int) -> int:
 
 
 def episode(kind: str, value: float, seed: int, model_file: str | None, rescue: bool = True,
-            noise_seed: int | None = None) -> dict[str, Any]:
+            noise_seed: int | None = None, duration_s: float | None = None) -> dict[str, Any]:
     """One closed-loop episode of ``kind`` with its knob at ``value`` on the random cycle of ``seed`` (the grey-box
     model read from ``model_file`` for the identified kinds, with or without its ``rescue`` solver); with
-    ``noise_seed``, the same cycle under the sensor noise of that seed."""
+    ``noise_seed``, the same cycle under the sensor noise of that seed; ``duration_s``: the random cycle's length."""
     from control.evaluation import evaluate
     from ident.greybox import StorageGreyBox
 
@@ -92,7 +87,10 @@ def episode(kind: str, value: float, seed: int, model_file: str | None, rescue: 
     policy = _controller(kind, value, None if model_file is None else StorageGreyBox.load(model_file), rescue)
     run = {"seeds": (seed,)} if noise_seed is None else {"seeds": (noise_seed,),
                                                          "reset_options": {"cycle_seed": cycle_seed(seed)}}
-    res = evaluate(policy, cycles=("random",), env_kwargs=getattr(policy, "env_kwargs", None), name=kind, **run)[0]
+    env_kwargs = dict(getattr(policy, "env_kwargs", None) or {})
+    if duration_s is not None:
+        env_kwargs["random_cycle_duration_s"] = float(duration_s)
+    res = evaluate(policy, cycles=("random",), env_kwargs=env_kwargs or None, name=kind, **run)[0]
     k = res.kpis
     return {"controller": kind, "knob": KNOBS[kind][0], "value": value, "seed": seed, "noise_seed": noise_seed,
             "tailpipe_nox_g_per_kwh": k["tailpipe_nox_g_per_kwh"], "mean_nh3_slip_ppm": k["mean_nh3_slip_ppm"],
@@ -101,7 +99,7 @@ def episode(kind: str, value: float, seed: int, model_file: str | None, rescue: 
             "solver_rescued": res.stats.get("solver_rescued", 0.0), "solves": res.stats.get("solves", float("nan")),
             "solve_time_ms_median": res.stats.get("solve_time_ms_median", float("nan")),
             "solve_time_ms_p95": res.stats.get("solve_time_ms_p95", float("nan")),
-            "wall_time_s": time.perf_counter() - t0}
+            "duration_s": k.get("duration_s"), "wall_time_s": time.perf_counter() - t0}
 
 
 def _rate(row: dict[str, Any]) -> float:
@@ -148,6 +146,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), help="random calibration cycles")
     ap.add_argument("--noise-seeds", nargs="+", type=int, default=None,
                     help="run each calibration cycle under these sensor-noise seeds (default: the cycle's own seed)")
+    ap.add_argument("--duration", type=float, default=None,
+                    help="length of each random calibration cycle [s] (default: the environment's 1800 s)")
     ap.add_argument("--slip-target", type=float, default=SLIP_TARGET_PPM, help="mean slip bound per cycle [ppm]")
     ap.add_argument("--ident-seeds", nargs="+", type=int, default=None,
                     help="random cycles of the grey-box identification (default: control.factory.IDENT_SEEDS)")
@@ -172,12 +172,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         model, ident = greybox_record(seeds, excitation)
         model_file = str(model.save(out / "greybox_model"))
     tasks = [{"kind": c, "value": v, "seed": s, "model_file": model_file if c.startswith("identified") else None,
-              "rescue": not args.no_rescue, "noise_seed": n} for c in args.controller
+              "rescue": not args.no_rescue, "noise_seed": n, "duration_s": args.duration} for c in args.controller
              for v in (args.values or KNOBS[c][1]) for s in args.seeds for n in (args.noise_seeds or [None])]
     rows = run_sweep(episode, tasks, description="calibration episodes", **from_args(args))
     doc: dict[str, Any] = {"slip_target_ppm": args.slip_target, "seeds": args.seeds, "rows": rows, "chosen": {},
-                           "noise_seeds": args.noise_seeds,
-                           "rescue": not args.no_rescue,
+                           "noise_seeds": args.noise_seeds, "duration_s": args.duration, "rescue": not args.no_rescue,
                            "identification": None if ident is None else ident["data"]}
     for c in args.controller:
         res = choose([r for r in rows if r["controller"] == c], args.slip_target)

@@ -72,3 +72,14 @@ def test_choose_refuses_values_that_fail_more_than_one_percent_of_their_solves()
     res = choose(rows, slip_target_ppm=8.0)
     assert res["value"] == 50
     assert {t["value"]: round(t["max_failure_rate"], 4) for t in res["table"]} == {50: 0.0028, 80: 0.0278}
+
+
+def test_duration_shortens_the_calibration_cycle():
+    """``--duration``: a shorter random cycle of the same seed (for slow controllers such as the oracle)."""
+    from experiments.calibrate_controllers import episode
+
+    short = episode("lookup_table", 1.27, 5, None, duration_s=120.0)
+    assert short["duration_s"] == pytest.approx(120.0, abs=1.0)
+    assert episode("lookup_table", 1.27, 5, None)["duration_s"] == pytest.approx(1800.0, abs=1.0)
+    assert episode("lookup_table", 1.27, 5, None, duration_s=120.0)["tailpipe_nox_g_per_kwh"] == \
+        short["tailpipe_nox_g_per_kwh"]                                           # seeded: the same cycle
