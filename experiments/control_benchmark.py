@@ -19,17 +19,18 @@ until ``control.limit.stored_limit`` exists); each NMPC's row has ``solves``, ``
 (default 0); with several, each controller's figures are their means and ``per_seed`` lists NOx, slip and failed
 solves per seed (the plots show the first seed).
 
-Spread over seeds (``--cycles whtc --seeds 0 1 2 3 4 5``): the baselines hardly move (look-up table 0.610-0.612 g/kWh,
-6.8-7.3 ppm). The identified NMPC did, before its slip guard (below): 6.7 ppm mean slip for seed 0 but 10.8-13.0 ppm
-for seeds 1-5 (seed 5 also 0.540 g/kWh), and a rounding-level change of the plant moved seed 0 to 12.5 ppm. The cause:
-on the WHTC's heat-up at 1500-1740 s the catalyst desorbs its store, the slip bound cannot be met, nearly every solve
-fails, and the look-up-table fallback dosed into the slip (seed 1: 89 of the 102 g of AdBlue there). With the slip
-guard (a failed solve doses nothing while the NH3 sensor reads above 10 ppm, the limit, not tuned;
-:data:`control.factory.SLIP_GUARD_PPM`): WHTC 0.207-0.214 g/kWh at 3.2-4.8 ppm over seeds 0-5 (230-382 failed solves),
-WHSC 0.176-0.184 g/kWh at 0.8-1.1 ppm; after the plant's fast-math compilation (scr_env/physics/backends.py) WHTC
-0.207-0.215 g/kWh at 3.2-4.6 ppm (220-440 failed solves), WHSC 0.177-0.186 g/kWh at 0.8-1.2 ppm. The guard was added
-after that WHTC diagnosis; on the calibration cycles it leaves the chosen design unchanged (storage value 50: 0.286
-g/kWh at 1.42 ppm, the guard never acting; it acts at value 100: 0.546 -> 0.681 g/kWh, 16.6 -> 14.6 ppm).
+On the plant before the NO2 chemistry (2f8934b), spread over seeds (``--cycles whtc --seeds 0 1 2 3 4 5``): the
+baselines hardly move (look-up table 0.610-0.612 g/kWh, 6.8-7.3 ppm). The identified NMPC did, before its slip guard
+(below): 6.7 ppm mean slip for seed 0 but 10.8-13.0 ppm for seeds 1-5 (seed 5 also 0.540 g/kWh), and a
+rounding-level change of the plant moved seed 0 to 12.5 ppm. The cause: on the WHTC's heat-up at 1500-1740 s the
+catalyst desorbs its store, the slip bound cannot be met, nearly every solve fails, and the look-up-table fallback
+dosed into the slip (seed 1: 89 of the 102 g of AdBlue there). With the slip guard (a failed solve doses nothing
+while the NH3 sensor reads above 10 ppm, the limit, not tuned; :data:`control.factory.SLIP_GUARD_PPM`): WHTC
+0.207-0.214 g/kWh at 3.2-4.8 ppm over seeds 0-5 (230-382 failed solves), WHSC 0.176-0.184 g/kWh at 0.8-1.1 ppm;
+after the plant's fast-math compilation (scr_env/physics/backends.py) WHTC 0.207-0.215 g/kWh at 3.2-4.6 ppm (220-440
+failed solves), WHSC 0.177-0.186 g/kWh at 0.8-1.2 ppm. The guard was added after that WHTC diagnosis; on the
+calibration cycles it leaves the chosen design unchanged (storage value 50: 0.286 g/kWh at 1.42 ppm, the guard never
+acting; it acts at value 100: 0.546 -> 0.681 g/kWh, 16.6 -> 14.6 ppm).
 """
 from __future__ import annotations
 
