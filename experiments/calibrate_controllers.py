@@ -45,7 +45,7 @@ from experiments.sweep import add_arguments, from_args, run_sweep
 KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "identified_preview": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "identified_nh3": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
-         "oracle": ("safe_slip_ppm", (50.0, 60.0, 70.0, 80.0, 90.0, 100.0)),
+         "oracle": ("safe_slip_ppm", (200.0, 300.0, 400.0, 500.0, 600.0)),
          "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
 DEFAULT_SEEDS = (5, 6, 7, 8)
 SLIP_TARGET_PPM = 8.0
