@@ -25,10 +25,22 @@ from the previous solution.
 
 A failed solve (solver status not successful, a non-finite result, or one of the numerical exceptions of
 :data:`SOLVE_ERRORS`) never raises mid-episode: the controller applies the last good plan while it lasts, then the
-fallback dose (the look-up table by default), counts the failure (``solver_failures``) and reports it in
-:meth:`NonlinearMPC.stats`, with the solve times. An iterate at the iteration limit that satisfies every constraint
-(model equations included, to 1e-6) is a valid but suboptimal plan: it is applied and counted as
-``solver_suboptimal``, not as a failure.
+fallback dose (the look-up table by default), counts the failure (``solver_failures``), classifies it by kind
+(:data:`FAILURE_KINDS`, ``solver_failures_<kind>``) and reports it in :meth:`NonlinearMPC.stats`, with the solve
+times. An iterate at the iteration limit that satisfies every constraint (model equations included, to 1e-6) is a
+valid but suboptimal plan: it is applied and counted as ``solver_suboptimal``, not as a failure. A fallback policy
+that raises or returns a non-finite action is replaced by the safe action, no dosing (counted as
+``fallback_errors``; the episode goes on).
+
+The solvers are quiet: IPOPT, CasADi's SQP method and its QP solver print nothing, and NaN/Inf found in the NLP's
+functions (CasADi's ``show_eval_warnings``) are not printed but counted (kind ``nonfinite_model``). Every failed
+solve is logged at debug level on the ``control.mpc`` logger (``logging.getLogger("control.mpc")``) with its step,
+kind and solver status, and kept in :attr:`NonlinearMPC.failures_` for the episode.
+
+Settings are checked when the controller is built (and again when its NLP is built, for attributes changed
+later): ``horizon`` and ``stage_steps`` whole numbers >= 1, ``slip_limit_ppm`` >= 0 (inf: no slip bound),
+``max_rate_change_g_s2`` > 0 (inf: no rate limit), :class:`MPCWeights` finite and >= 0, ``fallback`` a policy;
+a bad one raises ``ValueError`` naming it.
 
 What is *not* a failed solve, and raises: a bad observation (checked before anything else by
 :func:`control.protocol.check_observation`: None, NaN/inf, wrong size, a batch of several plants -- nothing of the
@@ -39,9 +51,10 @@ weak one that falls back to the look-up table.
 """
 from __future__ import annotations
 
+import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Protocol
 
 import casadi as ca
@@ -77,6 +90,72 @@ N_DISTURBANCE = 4
 #: Everything else propagates (module docstring).
 SOLVE_ERRORS: tuple[type[BaseException], ...] = (RuntimeError, np.linalg.LinAlgError, ArithmeticError)
 
+logger = logging.getLogger(__name__)
+
+#: the kinds a failed solve is counted under (``stats()["solver_failures_<kind>"]``):
+#:
+#: * ``iteration_limit``: the solver stopped at its iteration or time limit at an iterate that violates the
+#:   constraints (an iterate that satisfies them is a suboptimal plan, applied, not a failure);
+#: * ``infeasible``: the solver found the problem locally infeasible (IPOPT ``Infeasible_Problem_Detected``);
+#: * ``restoration``: IPOPT's feasibility restoration failed (``Restoration_Failed``, ``Error_In_Step_Computation``);
+#: * ``small_step``: the search direction became too small at an iterate that violates the constraints;
+#: * ``qp_failure``: the QP subproblem of an SQP method failed;
+#: * ``nonfinite_model``: NaN or Inf in the model's functions or in the returned solution;
+#: * ``estimator``: the state estimator failed (a singular innovation covariance, a non-finite update);
+#: * ``error``: any other numerical exception of the solve (:data:`SOLVE_ERRORS`, e.g. CasADi's RuntimeError);
+#: * ``other``: any other unsuccessful solver status.
+FAILURE_KINDS: tuple[str, ...] = ("iteration_limit", "infeasible", "restoration", "small_step", "qp_failure",
+                                  "nonfinite_model", "estimator", "error", "other")
+_STATUS_KINDS = {
+    "Maximum_Iterations_Exceeded": "iteration_limit", "Maximum_CpuTime_Exceeded": "iteration_limit",
+    "Maximum_WallTime_Exceeded": "iteration_limit", "Infeasible_Problem_Detected": "infeasible",
+    "Restoration_Failed": "restoration", "Error_In_Step_Computation": "restoration",
+    "Search_Direction_Becomes_Too_Small": "small_step", "Invalid_Number_Detected": "nonfinite_model",
+    "Not_Enough_Degrees_Of_Freedom": "infeasible", "QP_solver_failed": "qp_failure",
+    "Solve_Failed": "qp_failure", "Non_Regular_Sensitivities": "qp_failure"}
+#: solver statuses whose iterate may still be a valid (suboptimal) plan when it satisfies every constraint
+_USABLE_STATUSES = ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded", "Maximum_WallTime_Exceeded",
+                    "Search_Direction_Becomes_Too_Small")
+
+
+def failure_kind(status: str, unified: str = "") -> str:
+    """The :data:`FAILURE_KINDS` entry of an unsuccessful solver ``status`` (``return_status`` of the NLP solver's
+    stats; ``unified`` its ``unified_return_status``: NaN/Inf met by the solver first, then the status, then the
+    unified status when the status itself is not known here)."""
+    if unified == "SOLVER_RET_NAN":
+        return "nonfinite_model"   # e.g. sqpmethod's Non_Regular_Sensitivities after NaN in its functions
+    kind = _STATUS_KINDS.get(status)
+    if kind is not None:
+        return kind
+    low = status.lower()
+    if "qp" in low:
+        return "qp_failure"
+    if "nan" in low or "inf detected" in low or "invalid" in low:
+        return "nonfinite_model"
+    return {"SOLVER_RET_LIMITED": "iteration_limit", "SOLVER_RET_NAN": "nonfinite_model",
+            "SOLVER_RET_INFEASIBLE": "infeasible"}.get(unified, "other")
+
+
+def _check_count(value: Any, name: str) -> int:
+    """A whole number >= 1 (bool refused), as int; ``ValueError`` naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a whole number >= 1, got {value!r}")
+    return int(value)
+
+
+def _check_number(value: Any, name: str, *, positive: bool, allow_inf: bool) -> float:
+    """A real number, not NaN, >= 0 (``positive``: > 0), finite unless ``allow_inf``; ``ValueError`` naming
+    ``name`` otherwise."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if isinstance(value, bool) or math.isnan(v) or (math.isinf(v) and not allow_inf) or (v <= 0 if positive
+                                                                                         else v < 0):
+        bound = "> 0" if positive else ">= 0"
+        raise ValueError(f"{name} must be a {'' if allow_inf else 'finite '}number {bound}, got {value!r}")
+    return v
+
 
 @dataclass(frozen=True)
 class MPCWeights:
@@ -87,6 +166,12 @@ class MPCWeights:
     adblue: float = 1.0  # per g AdBlue
     rate_change: float = 0.05  # per (g/s)^2 of dose change between stages
     slack: float = 50.0  # per ppm of slip above the limit (plus its square), per stage
+
+    def __post_init__(self) -> None:
+        """Every weight a finite number >= 0 (``ValueError`` naming it): a negative AdBlue weight would pay the
+        controller for dosing, a NaN one makes every solve fail."""
+        for f in fields(self):
+            _check_number(getattr(self, f.name), f"MPCWeights.{f.name}", positive=False, allow_inf=False)
 
 
 class PredictionModel(Protocol):
@@ -150,6 +235,16 @@ class NonlinearMPC:
         multipliers of the previous problem (another disturbance, another active set) make that Hessian indefinite
         after a transient, and the QP solver then pivots for long or fails (non-finite steps and NaN gradients
         downstream); starting from zero multipliers (the objective's Hessian) converges in a few iterations.
+    rescue_solver, rescue_options : an optional second ``nlpsol`` plugin (and its options; IPOPT's defaults as
+        above) that solves the same NLP when the first solver fails, from the cold start (the estimated state held
+        over the horizon, the last dose): a fast SQP method for the common case, a robust interior-point method
+        for the rest. A rescued solve is not a failure; it is counted as ``solver_rescued`` (and kept in
+        :attr:`rescues_` with the first solver's failure kind); a solve that both fail counts as failed, with the
+        rescue's kind.
+    rescue_hold_steps : after a rescue, the next ``rescue_hold_steps`` solves go to the rescue solver first
+        (warm-started from the last plan; the first solver, then the rescue from the cold start, if it fails):
+        failed solves come in stretches (a heat-up desorbing the store), and a first solver that fails again at
+        every step would double each step's cost there. Counted as ``solver_rescue_held`` (the solves it made).
     """
 
     def __init__(self, model: PredictionModel, horizon: int = 20, stage_steps: int = 4,
@@ -157,9 +252,9 @@ class NonlinearMPC:
                  max_rate_change_g_s2: float = 1.0, preview: bool = False, fallback: Any = None,
                  solver: str = "ipopt", solver_options: dict | None = None,
                  warm_start_duals: bool | None = None, slip_guard: tuple[int, float] | None = None,
-                 estimator: StateEstimator | None = None) -> None:
+                 estimator: StateEstimator | None = None, rescue_solver: str | None = None,
+                 rescue_options: dict | None = None, rescue_hold_steps: int = 0) -> None:
         self.model = model
-        self.estimator = model.make_estimator() if estimator is None else estimator
         self.horizon = horizon
         self.stage_steps = stage_steps
         self.weights = weights
@@ -167,6 +262,8 @@ class NonlinearMPC:
         self.max_rate_change_g_s2 = max_rate_change_g_s2
         self.preview = preview
         self.fallback = fallback
+        self._check_settings()
+        self.estimator = model.make_estimator() if estimator is None else estimator
         if slip_guard is not None:
             idx, ppm = slip_guard
             if int(idx) != idx or idx < 0 or not np.isfinite(ppm) or ppm < 0:
@@ -177,12 +274,44 @@ class NonlinearMPC:
         self.solver = solver
         self.solver_options = solver_options
         self.warm_start_duals = (solver == "ipopt") if warm_start_duals is None else bool(warm_start_duals)
+        if not isinstance(solver, str) or not solver:
+            raise ValueError(f"solver must be the name of a CasADi nlpsol plugin, got {solver!r}")
+        if solver_options is not None and not isinstance(solver_options, dict):
+            raise ValueError(f"solver_options must be a dict of CasADi options or None, got {solver_options!r}")
+        if rescue_solver is not None and (not isinstance(rescue_solver, str) or not rescue_solver):
+            raise ValueError(f"rescue_solver must be the name of a CasADi nlpsol plugin or None, got "
+                             f"{rescue_solver!r}")
+        if rescue_options is not None and not isinstance(rescue_options, dict):
+            raise ValueError(f"rescue_options must be a dict of CasADi options or None, got {rescue_options!r}")
+        if isinstance(rescue_hold_steps, bool) or not isinstance(rescue_hold_steps, (int, np.integer)) \
+                or rescue_hold_steps < 0:
+            raise ValueError(f"rescue_hold_steps must be a whole number >= 0, got {rescue_hold_steps!r}")
+        self.rescue_solver = rescue_solver
+        self.rescue_options = rescue_options
+        self.rescue_hold_steps = int(rescue_hold_steps)
+        self._default_fallback: Any = None
         self.dt = 0.5
         self.max_rate_g_s = DEFAULT_MAX_RATE_G_S
         self.observation_size_: int | None = None
         self._env = None
         self._solver = None
         self._reset_episode()
+
+    def _check_settings(self) -> None:
+        """The settings (module docstring); ``ValueError`` naming the first bad one. Normalises the counts to int."""
+        self.horizon = _check_count(self.horizon, "horizon")
+        self.stage_steps = _check_count(self.stage_steps, "stage_steps")
+        _check_number(self.slip_limit_ppm, "slip_limit_ppm", positive=False, allow_inf=True)
+        _check_number(self.max_rate_change_g_s2, "max_rate_change_g_s2", positive=True, allow_inf=True)
+        if self.weights is not None and not isinstance(self.weights, MPCWeights):
+            raise ValueError(f"weights must be an MPCWeights or None, got {type(self.weights).__name__}")
+        if self.weights is not None:
+            self.weights.__post_init__()   # a frozen dataclass can still be changed by object.__setattr__
+        if self.fallback is not None and not callable(getattr(self.fallback, "predict", None)):
+            raise ValueError(f"fallback must be a policy with predict(observation, ...) or None, got "
+                             f"{type(self.fallback).__name__}")
+        if not isinstance(self.preview, (bool, np.bool_)):
+            raise ValueError(f"preview must be True or False, got {self.preview!r}")  # noqa: TRY004  (the rule)
 
     # ------------------------------------------------------------------------------------------- protocol hooks
     def attach(self, env: Any) -> None:
@@ -202,36 +331,54 @@ class NonlinearMPC:
         self.observation_size_ = n_obs
 
     def stats(self) -> dict[str, float]:
-        """Solver statistics of the episode: failures, solves, solve time median / p95 / max [ms], iterations, and
-        the failed-solve steps the ``slip_guard`` set to zero dosing.
+        """Solver statistics of the episode: failures (in total and by kind, ``solver_failures_<kind>`` for every
+        kind of :data:`FAILURE_KINDS`), solves, suboptimal plans applied, solve time median / p95 / max [ms],
+        iterations, the failed-solve steps the ``slip_guard`` set to zero dosing, and the steps whose fallback
+        raised or gave a non-finite action (``fallback_errors``: the safe action, no dosing, was applied).
 
         ``solve_time_ms_*`` is the CPU time of the solving thread (what the solve costs, independent of other
         processes sharing the cores); ``solve_wall_ms_*`` the wall-clock time (includes waiting for a core)."""
         t = np.asarray(self._solve_ms) if self._solve_ms else np.array([math.nan])
         tw = np.asarray(self._solve_wall_ms) if self._solve_wall_ms else np.array([math.nan])
         it = np.asarray(self._iters) if self._iters else np.array([math.nan])
-        return {"solver_failures": float(self._failures), "solves": float(len(self._solve_ms)),
-                "solver_suboptimal": float(self._suboptimal), "slip_guarded_steps": float(self._guarded),
-                "solve_time_ms_median": float(np.median(t)), "solve_time_ms_p95": float(np.percentile(t, 95)),
-                "solve_time_ms_max": float(np.max(t)), "solve_wall_ms_median": float(np.median(tw)),
-                "solve_wall_ms_p95": float(np.percentile(tw, 95)), "solver_iterations_mean": float(np.mean(it))}
+        out = {"solver_failures": float(self._failures), "solves": float(len(self._solve_ms)),
+               "solver_suboptimal": float(self._suboptimal), "slip_guarded_steps": float(self._guarded),
+               "fallback_errors": float(self._fallback_errors), "solver_rescued": float(self._rescued),
+               "solver_rescue_held": float(self._held),
+               "solve_time_ms_median": float(np.median(t)), "solve_time_ms_p95": float(np.percentile(t, 95)),
+               "solve_time_ms_max": float(np.max(t)), "solve_wall_ms_median": float(np.median(tw)),
+               "solve_wall_ms_p95": float(np.percentile(tw, 95)), "solver_iterations_mean": float(np.mean(it))}
+        out.update({f"solver_failures_{k}": float(self._kinds.get(k, 0)) for k in FAILURE_KINDS})
+        return out
 
     def _reset_episode(self) -> None:
         self._failures = 0
         self._suboptimal = 0
         self._guarded = 0
+        self._fallback_errors = 0
+        self._rescued = 0
+        self._held = 0
+        self._hold = 0
+        self._kinds: dict[str, int] = {}
         self._plan_age = 0
+        self._step = 0
         self._solve_ms: list[float] = []
         self._solve_wall_ms: list[float] = []
         self._iters: list[int] = []
         self._w0: np.ndarray | None = None
         self._lam_g0: np.ndarray | None = None
         self._u_prev = 0.0
+        self._failure: tuple[str, str] | None = None
         self.last_plan_: dict[str, np.ndarray] | None = None
         self.status_counts_: dict[str, int] = {}
+        #: the failed solves of the episode: (step, kind, solver status or exception)
+        self.failures_: list[tuple[int, str, str]] = []
+        #: the solves the rescue solver saved: (step, the first solver's failure kind, its status)
+        self.rescues_: list[tuple[int, str, str]] = []
 
     # ------------------------------------------------------------------------------------------------- the NLP
     def _build(self) -> None:
+        self._check_settings()
         m, H = self.model, int(self.horizon)
         w = self.weights or MPCWeights()
         h = self.stage_steps * self.dt
@@ -275,12 +422,21 @@ class NonlinearMPC:
         self._lbg, self._ubg = np.array(lbg), np.array(ubg)
         wv = ca.vertcat(ca.vec(X), U, S)
         pv = ca.vertcat(x0, ca.vec(D), ca.vec(Pst), Pt, u_prev)
+        self._nlp = {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}
+        self._solver = self._nlpsol("mpc", self.solver, self.solver_options)
+        self._rescue = None if self.rescue_solver is None else self._nlpsol("mpc_rescue", self.rescue_solver,
+                                                                            self.rescue_options)
+        self._H, self._nx = H, nx
+
+    def _nlpsol(self, name: str, solver: str, options: dict | None) -> ca.Function:
+        """The NLP's ``nlpsol`` with ``solver``'s quiet defaults updated by ``options``."""
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": 60, "ipopt.tol": 1e-6,
                 "ipopt.acceptable_tol": 1e-3, "ipopt.acceptable_iter": 3, "ipopt.warm_start_init_point": "yes",
-                "ipopt.sb": "yes", "ipopt.mu_init": 1e-3} if self.solver == "ipopt" else {"print_time": False}
-        opts.update(self.solver_options or {})
-        self._solver = ca.nlpsol("mpc", self.solver, {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}, opts)
-        self._H, self._nx = H, nx
+                "ipopt.sb": "yes", "ipopt.mu_init": 1e-3} if solver == "ipopt" else {"print_time": False}
+        # NaN/Inf in the NLP's functions is a failed solve, counted by kind (nonfinite_model), not a printed line
+        opts["show_eval_warnings"] = False
+        opts.update(options or {})
+        return ca.nlpsol(name, solver, self._nlp, opts)
 
     # ------------------------------------------------------------------------------------------------- acting
     def _disturbances(self, observation: np.ndarray) -> np.ndarray:
@@ -293,9 +449,29 @@ class NonlinearMPC:
         return np.tile([observation[2], observation[1], observation[0], no2f], (H, 1))
 
     def _fallback_rate(self, observation: np.ndarray) -> float:
-        fb = self.fallback or LookupTableDosing(max_rate_g_s=self.max_rate_g_s)
-        a, _ = fb.predict(observation, deterministic=True)
-        return action_to_rate(a, self.max_rate_g_s)
+        """The fallback policy's dose [g/s]; the safe action (0, no dosing) if it raises or gives a non-finite
+        action (counted as ``fallback_errors``, logged)."""
+        fb = self.fallback
+        if fb is None:
+            if self._default_fallback is None or self._default_fallback.max_rate_g_s != self.max_rate_g_s:
+                self._default_fallback = LookupTableDosing(max_rate_g_s=self.max_rate_g_s)
+            fb = self._default_fallback
+        try:
+            a, _ = fb.predict(observation, deterministic=True)
+            a = np.asarray(a, dtype=np.float64)
+            rate = action_to_rate(a, self.max_rate_g_s)
+        except Exception as exc:  # noqa: BLE001  (a broken user fallback must not end the episode: safe action)
+            return self._fallback_error(f"raised {type(exc).__name__}: {exc}")
+        if not (np.all(np.isfinite(a)) and math.isfinite(rate)):
+            return self._fallback_error(f"returned a non-finite action {a.tolist()!r}")
+        return rate
+
+    def _fallback_error(self, what: str) -> float:
+        self._fallback_errors += 1
+        log = logger.warning if self._fallback_errors == 1 else logger.debug
+        log("NonlinearMPC step %d: the fallback policy %s; the safe action (no dosing) is applied instead",
+            self._step, what)
+        return 0.0
 
     def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
@@ -314,14 +490,21 @@ class NonlinearMPC:
             self._build()
         t0, c0 = time.perf_counter(), time.thread_time()
         rate = None
+        self._failure = None
         try:
             rate = self._solve(obs)
-        except SOLVE_ERRORS:  # a numerical failure of the solve falls back, counted (see SOLVE_ERRORS)
+        except SOLVE_ERRORS as exc:  # a numerical failure of the solve falls back, counted (see SOLVE_ERRORS)
             rate = None
+            kind = "error" if self._failure is None else self._failure[0]
+            self._failure = (kind, f"{type(exc).__name__}: {exc}")
         self._solve_ms.append((time.thread_time() - c0) * 1e3)
         self._solve_wall_ms.append((time.perf_counter() - t0) * 1e3)
         if rate is None:
             self._failures += 1
+            kind, status = self._failure or ("other", "unknown")
+            self._kinds[kind] = self._kinds.get(kind, 0) + 1
+            self.failures_.append((self._step, kind, status))
+            logger.debug("NonlinearMPC step %d: failed solve (%s: %s)", self._step, kind, status)
             self._plan_age += 1
             plan = self.last_plan_
             i = self._plan_age // self.stage_steps
@@ -336,6 +519,7 @@ class NonlinearMPC:
             rate = min(max(rate, self._u_prev - lim), self._u_prev + lim)
         rate = min(max(rate, 0.0), self.max_rate_g_s)
         self._u_prev = rate
+        self._step += 1
         action = rate_to_action(rate, self.max_rate_g_s)
         return (action if single else action[None, :]), state
 
@@ -354,11 +538,18 @@ class NonlinearMPC:
         H, nx = self._H, self._nx
         h = self.stage_steps * self.dt
         dist = self._disturbances(obs)
-        x0 = self.estimator.make_step(obs, self._u_prev, dist[0])
+        try:
+            x0 = self.estimator.make_step(obs, self._u_prev, dist[0])
+        except SOLVE_ERRORS:
+            self._failure = ("estimator", "the state estimator failed")
+            raise
         pst, pt = self.model.stage_parameters(obs, dist, h, self.dt)
         pst = np.zeros((H, 1)) if pst.size == 0 else pst
         pt = np.zeros(1) if pt.size == 0 else pt
         pv = np.concatenate([x0, dist.ravel(), pst.ravel(), pt, [self._u_prev]])
+        if not np.all(np.isfinite(pv)):
+            self._failure = ("nonfinite_model", "non-finite initial state or stage parameters")
+            return None
         if self._w0 is None:
             w0 = np.concatenate([np.tile(x0, H), np.full(H, self._u_prev), np.zeros(H)])
         else:
@@ -367,22 +558,28 @@ class NonlinearMPC:
         args = {"x0": w0, "p": pv, "lbx": self._lbw, "ubx": self._ubw, "lbg": self._lbg, "ubg": self._ubg}
         if self._lam_g0 is not None and self.warm_start_duals:
             args["lam_g0"] = self._lam_g0
-        sol = self._solver(**args)
-        st = self._solver.stats()
-        self._iters.append(int(st.get("iter_count", 0)))
-        status = str(st.get("return_status", ""))
-        self.status_counts_[status] = self.status_counts_.get(status, 0) + 1
-        wopt = np.asarray(sol["x"]).ravel()
-        if not np.all(np.isfinite(wopt)):
+        bounds = {k: args[k] for k in ("p", "lbx", "ubx", "lbg", "ubg")}
+        sol = None
+        if self._rescue is not None and self._hold > 0:   # a hard stretch: the rescue solver first, warm-started
+            self._hold -= 1
+            sol, _ = self._attempt(self._rescue, {**bounds, "x0": w0}, "rescue:")
+            self._held += sol is not None
+        if sol is None:
+            sol, failure = self._attempt(self._solver, args, "")
+        if sol is None and self._rescue is not None:
+            cold = np.clip(np.concatenate([np.tile(x0, H), np.full(H, self._u_prev), np.zeros(H)]), self._lbw,
+                           self._ubw)
+            sol, second = self._attempt(self._rescue, {**bounds, "x0": cold}, "rescue:")
+            if sol is not None:
+                self._rescued += 1
+                self._hold = self.rescue_hold_steps
+                self.rescues_.append((self._step, *failure))
+            else:
+                failure = (second[0], f"{failure[1]}; rescue: {second[1]}")
+        if sol is None:
+            self._failure = failure
             return None
-        if not st.get("success", False):
-            # an iterate that satisfies the model and the constraints is a valid (suboptimal) plan: use it, count it
-            g = np.asarray(sol["g"]).ravel()
-            viol = max(float(np.max(self._lbg - g)), float(np.max(g - self._ubg)), 0.0)
-            if status not in ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded",
-                              "Search_Direction_Becomes_Too_Small") or viol > 1e-6:
-                return None
-            self._suboptimal += 1
+        wopt = np.asarray(sol["x"]).ravel()
         X = wopt[:nx * H].reshape(H, nx)
         U = wopt[nx * H:nx * H + H]
         S = wopt[nx * H + H:]
@@ -392,3 +589,30 @@ class NonlinearMPC:
         self._w0 = wopt
         self._lam_g0 = np.asarray(sol["lam_g"]).ravel()
         return float(U[0])
+
+    def _attempt(self, solver: ca.Function, args: dict[str, Any],
+                 tag: str) -> tuple[dict[str, Any] | None, tuple[str, str]]:
+        """One solve: ``(solution, ("", ""))``, or ``(None, (failure kind, status))`` for a failed one (an unusable
+        status, a non-finite result, CasADi's RuntimeError). Counts iterations, statuses (``tag`` + status) and
+        suboptimal plans."""
+        try:
+            sol = solver(**args)
+            st = solver.stats()
+        except RuntimeError as exc:
+            return None, ("error", f"RuntimeError: {exc}")
+        self._iters.append(int(st.get("iter_count", 0)))
+        status = str(st.get("return_status", ""))
+        key = tag + status
+        self.status_counts_[key] = self.status_counts_.get(key, 0) + 1
+        wopt = np.asarray(sol["x"]).ravel()
+        g = np.asarray(sol["g"]).ravel()
+        if not (np.all(np.isfinite(wopt)) and np.all(np.isfinite(g))):
+            return None, ("nonfinite_model", status or "non-finite solution")
+        if not st.get("success", False):
+            # an iterate that satisfies the model and the constraints is a valid (suboptimal) plan: use it, count it
+            viol = max(float(np.max(self._lbg - g)), float(np.max(g - self._ubg)), 0.0)
+            if status not in _USABLE_STATUSES or viol > 1e-6:
+                return None, (failure_kind(status, str(st.get("unified_return_status", ""))),
+                              f"{status} (constraint violation {viol:.3g})")
+            self._suboptimal += 1
+        return sol, ("", "")

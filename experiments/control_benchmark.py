@@ -10,22 +10,27 @@ sensor alone) and ``mpc_identified_no_preview`` (NOx sensor alone, the measured 
 what a truck without an NH3 sensor or route preview can do), ``mpc_oracle`` (NMPC on the first-principles catalyst
 with privileged state and the cycle preview), and the shipped RL policies ``ppo`` / ``sac`` when :mod:`control.rl`
 provides them (skipped otherwise, and said so). Writes the KPI table, a JSON {"cycles": {cycle: {"controllers": {name:
-KPIs and timings}}}} and plots of the closed-loop trajectories to ``runs/control_benchmark/<stamp>/``. ``--quick``:
-the WHTC only, shorter oracle horizon. ``--seeds``: the reset seeds (sensor noise) of every episode (default 0); with
-several, each controller's figures are their means and ``per_seed`` lists NOx, slip and failed solves per seed (the
-plots show the first seed).
+KPIs and timings}}}} and plots of the closed-loop trajectories to ``runs/control_benchmark/<stamp>/``. Each row has
+``gap_closed`` (the fraction of the look-up-table-to-oracle tailpipe NOx gap it closes) and ``gap_to_limit`` (the
+fraction of the gap to the clairvoyant limit at 10 ppm, read from the stored limit by :func:`stored_limit_nox`; None
+until ``control.limit.stored_limit`` exists); each NMPC's row has ``solves``, ``solver_failures`` and
+``solver_failure_kinds`` (kind -> count, :data:`control.mpc.FAILURE_KINDS`), ``solver_rescued``, solve times.
+``--quick``: the WHTC only, shorter oracle horizon. ``--seeds``: the reset seeds (sensor noise) of every episode
+(default 0); with several, each controller's figures are their means and ``per_seed`` lists NOx, slip and failed
+solves per seed (the plots show the first seed).
 
-Spread over seeds (``--cycles whtc --seeds 0 1 2 3 4 5``): the baselines hardly move (look-up table 0.610-0.612 g/kWh,
-6.8-7.3 ppm). The identified NMPC did, before its slip guard (below): 6.7 ppm mean slip for seed 0 but 10.8-13.0 ppm
-for seeds 1-5 (seed 5 also 0.540 g/kWh), and a rounding-level change of the plant moved seed 0 to 12.5 ppm. The cause:
-on the WHTC's heat-up at 1500-1740 s the catalyst desorbs its store, the slip bound cannot be met, nearly every solve
-fails, and the look-up-table fallback dosed into the slip (seed 1: 89 of the 102 g of AdBlue there). With the slip
-guard (a failed solve doses nothing while the NH3 sensor reads above 10 ppm, the limit, not tuned;
-:data:`control.factory.SLIP_GUARD_PPM`): WHTC 0.207-0.214 g/kWh at 3.2-4.8 ppm over seeds 0-5 (230-382 failed solves),
-WHSC 0.176-0.184 g/kWh at 0.8-1.1 ppm; after the plant's fast-math compilation (scr_env/physics/backends.py) WHTC
-0.207-0.215 g/kWh at 3.2-4.6 ppm (220-440 failed solves), WHSC 0.177-0.186 g/kWh at 0.8-1.2 ppm. The guard was added
-after that WHTC diagnosis; on the calibration cycles it leaves the chosen design unchanged (storage value 50: 0.286
-g/kWh at 1.42 ppm, the guard never acting; it acts at value 100: 0.546 -> 0.681 g/kWh, 16.6 -> 14.6 ppm).
+On the plant before the NO2 chemistry (2f8934b), spread over seeds (``--cycles whtc --seeds 0 1 2 3 4 5``): the
+baselines hardly move (look-up table 0.610-0.612 g/kWh, 6.8-7.3 ppm). The identified NMPC did, before its slip guard
+(below): 6.7 ppm mean slip for seed 0 but 10.8-13.0 ppm for seeds 1-5 (seed 5 also 0.540 g/kWh), and a
+rounding-level change of the plant moved seed 0 to 12.5 ppm. The cause: on the WHTC's heat-up at 1500-1740 s the
+catalyst desorbs its store, the slip bound cannot be met, nearly every solve fails, and the look-up-table fallback
+dosed into the slip (seed 1: 89 of the 102 g of AdBlue there). With the slip guard (a failed solve doses nothing
+while the NH3 sensor reads above 10 ppm, the limit, not tuned; :data:`control.factory.SLIP_GUARD_PPM`): WHTC
+0.207-0.214 g/kWh at 3.2-4.8 ppm over seeds 0-5 (230-382 failed solves), WHSC 0.176-0.184 g/kWh at 0.8-1.1 ppm;
+after the plant's fast-math compilation (scr_env/physics/backends.py) WHTC 0.207-0.215 g/kWh at 3.2-4.6 ppm (220-440
+failed solves), WHSC 0.177-0.186 g/kWh at 0.8-1.2 ppm. The guard was added after that WHTC diagnosis; on the
+calibration cycles it leaves the chosen design unchanged (storage value 50: 0.286 g/kWh at 1.42 ppm, the guard never
+acting; it acts at value 100: 0.546 -> 0.681 g/kWh, 16.6 -> 14.6 ppm).
 """
 from __future__ import annotations
 
@@ -39,6 +44,7 @@ import numpy as np
 
 from control.evaluation import EpisodeResult, comparison_table, evaluate, summarise
 from control.factory import IDENTIFIED_VARIANTS, available_rl, greybox_record, make_controller
+from control.mpc import FAILURE_KINDS
 from control.plots import closed_loop_figure
 from experiments._runs import run_folder, save_results, write_text
 
@@ -47,7 +53,9 @@ REPORT_KEYS = ("nox_conversion", "engine_out_nox_g_per_kwh", "tailpipe_nox_g_per
                "peak_nh3_slip_ppm", "adblue_g", "nh3_slip_g", "engine_work_kwh", "policy_time_ms_median",
                "policy_time_ms_p95", "solver_failures", "solve_time_ms_median", "solve_time_ms_p95",
                "solve_time_ms_max", "solve_wall_ms_median", "solve_wall_ms_p95", "solver_iterations_mean",
-               "solver_suboptimal", "slip_guarded_steps")
+               "solver_suboptimal", "slip_guarded_steps", "solves", "fallback_errors", "solver_rescued")
+#: the slip budget [ppm] of the clairvoyant limit that ``gap_to_limit`` is measured against (Euro VI)
+LIMIT_BUDGET_PPM = 10.0
 
 
 def _job(args: tuple[str, str, str | None, bool, int, bool]) -> EpisodeResult:
@@ -64,11 +72,14 @@ def _job(args: tuple[str, str, str | None, bool, int, bool]) -> EpisodeResult:
 
 
 def _controllers(results: list[EpisodeResult], cycle: str, seeds: list[int]) -> dict[str, Any]:
-    """The JSON rows of one cycle: the means over seeds of :data:`REPORT_KEYS` and, with several seeds, the
-    per-seed NOx, slip and failed solves."""
+    """The JSON rows of one cycle: the means over seeds of :data:`REPORT_KEYS`, the NMPCs' failed solves by kind
+    (``solver_failure_kinds``, kind -> mean count over seeds) and, with several seeds, the per-seed NOx, slip and
+    failed solves."""
     ctrl = {}
     for name, agg in summarise(results).get(cycle, {}).items():
         row = {k: v for k, v in agg.items() if k in REPORT_KEYS or k == "wall_time_s"}
+        if "solver_failures" in agg:
+            row["solver_failure_kinds"] = {k: agg.get(f"solver_failures_{k}", 0.0) for k in FAILURE_KINDS}
         if len(seeds) > 1:   # the spread over sensor-noise seeds (the row holds their means)
             rs = sorted((r for r in results if r.cycle == cycle and r.name == name), key=lambda r: r.seed)
             row["per_seed"] = {"seed": [r.seed for r in rs]} | {
@@ -76,6 +87,51 @@ def _controllers(results: list[EpisodeResult], cycle: str, seeds: list[int]) -> 
                                                           "solver_failures")}
         ctrl[name] = row
     return ctrl
+
+
+def stored_limit_nox(cycle: str, budget_ppm: float = LIMIT_BUDGET_PPM) -> float | None:
+    """Issue 19 part 3: the clairvoyant limit's tailpipe NOx [g/kWh] on ``cycle`` at ``budget_ppm``, the replayed
+    optimum of ``control.limit.stored_limit(cycle, budget_ppm)`` (stored in the repository, never re-solved); None
+    without that API, without a stored result for the cycle and budget, or with one solved for another plant
+    (``StaleLimitWarning``): then ``gap_to_limit`` is None."""
+    import warnings
+
+    try:
+        from control.limit import stored_limit  # type: ignore[attr-defined]
+    except ImportError:
+        return None
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rec = stored_limit(cycle, budget_ppm)
+    except (FileNotFoundError, ValueError):
+        return None
+    if rec is None or any(w.category.__name__ == "StaleLimitWarning" for w in caught):
+        return None
+    nox = rec.get("replay_tailpipe_nox_g_per_kwh", rec.get("tailpipe_nox_g_per_kwh")) if isinstance(rec, dict) \
+        else getattr(rec, "replay_tailpipe_nox_g_per_kwh", None)
+    return None if nox is None or not np.isfinite(nox) else float(nox)
+
+
+def _gaps(ctrl: dict[str, Any], cycle: str) -> dict[str, Any]:
+    """``gap_closed`` (look-up table to oracle) and ``gap_to_limit`` (look-up table to the stored clairvoyant limit at
+    :data:`LIMIT_BUDGET_PPM`) of every controller, written into its row; the cycle's summary entries."""
+    lut = ctrl.get("lookup_table", {}).get("tailpipe_nox_g_per_kwh")
+    orc = ctrl.get("mpc_oracle", {}).get("tailpipe_nox_g_per_kwh")
+    limit = stored_limit_nox(cycle)
+    for row in ctrl.values():
+        tp = row["tailpipe_nox_g_per_kwh"]
+        row["gap_closed"] = (lut - tp) / (lut - orc) if lut is not None and orc is not None and lut > orc else None
+        row["gap_to_limit"] = (lut - tp) / (lut - limit) if lut is not None and limit is not None and lut > limit \
+            else None
+    out: dict[str, Any] = {"limit_tailpipe_nox_g_per_kwh": limit, "limit_budget_ppm": LIMIT_BUDGET_PPM}
+    if "mpc_identified" in ctrl:
+        out["gap_closed_by_mpc_identified"] = ctrl["mpc_identified"]["gap_closed"]
+    return out
+
+
+def _fmt(v: float | None) -> str:
+    return "-" if v is None else f"{v:.2f}"
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -121,14 +177,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                            "run_folder": str(out), "quick": bool(args.quick), "seeds": seeds}
     for c in cycles:
         ctrl = _controllers(results, c, seeds)
-        doc["cycles"][c] = {"controllers": ctrl}
-        if all(n in ctrl for n in ("lookup_table", "mpc_oracle", "mpc_identified")):
-            lut, orc, idm = (ctrl[n]["tailpipe_nox_g_per_kwh"]
-                             for n in ("lookup_table", "mpc_oracle", "mpc_identified"))
-            gap = lut - orc
-            doc["cycles"][c]["gap_closed_by_mpc_identified"] = (lut - idm) / gap if gap > 0 else float("nan")
-            print(f"{c}: mpc_identified closes {doc['cycles'][c]['gap_closed_by_mpc_identified']:.2f} of the "
-                  "look-up-table-to-oracle tailpipe NOx gap")
+        doc["cycles"][c] = {"controllers": ctrl, **_gaps(ctrl, c)}
+        for n, row in ctrl.items():
+            if row["gap_closed"] is not None or row["gap_to_limit"] is not None:
+                print(f"{c}: {n:26s} gap closed (look-up table to oracle) {_fmt(row['gap_closed'])}, "
+                      f"to the limit at {LIMIT_BUDGET_PPM:g} ppm {_fmt(row['gap_to_limit'])}")
+            if row.get("solver_failures"):
+                print(f"{c}: {n:26s} failed solves by kind: " + ", ".join(
+                    f"{k} {v:g}" for k, v in row["solver_failure_kinds"].items() if v))
         closed_loop_figure([(r.name, r.kpis, r.trajectory) for r in results if r.cycle == c and r.seed == seeds[0]],
                            f"closed loop on the hot {c.upper()}", out / f"closed_loop_{c}.png")
     doc["wall_time_s"] = time.perf_counter() - t_start

@@ -47,3 +47,39 @@ def test_identified_kinds_differ_only_in_the_preview():
     assert (plain.preview, preview.preview) == (False, True)
     assert plain.model.implicit_stage is not None and preview.model.implicit_stage is not None
     assert 5 not in IDENT_SEEDS and 6 not in IDENT_SEEDS
+
+
+def test_noise_seeds_replay_the_same_calibration_cycle():
+    import numpy as np
+
+    from experiments.calibrate_controllers import cycle_seed
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    env = UreaSCREnv(cycle="random")
+    a = np.array([0.0], dtype=np.float32)
+    env.reset(seed=5)
+    own = env.trace.exhaust_flow_mol_s.copy()
+    sensed_own = [env.step(a)[0][3] for _ in range(20)]
+    env.reset(seed=0, options={"cycle_seed": cycle_seed(5)})
+    assert np.array_equal(env.trace.exhaust_flow_mol_s, own)   # the same cycle ...
+    sensed_other = [env.step(a)[0][3] for _ in range(20)]
+    assert not np.allclose(sensed_own, sensed_other)            # ... under other sensor noise
+
+
+def test_choose_refuses_values_that_fail_more_than_one_percent_of_their_solves():
+    rows = [dict(_row(50, 5, 0.30, 2.0, fails=10.0), solves=3600.0),
+            dict(_row(80, 5, 0.20, 3.0, fails=100.0), solves=3600.0)]   # lower NOx, but 2.8 % failed solves
+    res = choose(rows, slip_target_ppm=8.0)
+    assert res["value"] == 50
+    assert {t["value"]: round(t["max_failure_rate"], 4) for t in res["table"]} == {50: 0.0028, 80: 0.0278}
+
+
+def test_duration_shortens_the_calibration_cycle():
+    """``--duration``: a shorter random cycle of the same seed (for slow controllers such as the oracle)."""
+    from experiments.calibrate_controllers import episode
+
+    short = episode("lookup_table", 1.27, 5, None, duration_s=120.0)
+    assert short["duration_s"] == pytest.approx(120.0, abs=1.0)
+    assert episode("lookup_table", 1.27, 5, None)["duration_s"] == pytest.approx(1800.0, abs=1.0)
+    assert episode("lookup_table", 1.27, 5, None, duration_s=120.0)["tailpipe_nox_g_per_kwh"] == \
+        short["tailpipe_nox_g_per_kwh"]                                           # seeded: the same cycle
