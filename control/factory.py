@@ -87,6 +87,11 @@ SLIP_GUARD_PPM = EURO_VI_NH3_SLIP_LIMIT_PPM
 #:   600: 0.164 at 64.0 (0).  On this plant 50 ppm (the old choice) stores almost nothing (cycle 5, 600 s: 0.627
 #: g/kWh at 0.01 ppm against 0.193 at 1.13 for 200). 200-300 was not refined (time); cycle 5 reaches 8.37 at 300.
 ORACLE_SAFE_SLIP_PPM = 200.0
+#: the oracle NMPC's terminal value of stored NH3 [g AdBlue equivalent per mol] (control.models.FirstPrinciplesModel):
+#: 200 g/mol, chosen on the plant before the NO2 chemistry; re-checked on the new plant by
+#: ``python -m experiments.calibrate_controllers --controller oracle_storage --values 50 100 --seeds 5 6 7 8
+#: --duration 900 --workers 1`` (random cycles 5-8, 900 s; safe slip 200 ppm; the 200 g/mol row is the oracle table's).
+ORACLE_STORAGE_VALUE_G_PER_MOL = 200.0
 #: the oracle NMPC's IPOPT options (on top of NonlinearMPC's defaults: warm start, mu_init 1e-3, 60 iterations).
 #: Its failed solves on the calibration cycles are iteration limits (diagnosed on random cycles 5 and 8): the
 #: monotone barrier strategy warm-started at a small barrier parameter stalls after a change of the active set, and
@@ -257,13 +262,19 @@ def black_box_mpc(model: Any, input_mean: Any, input_scale: Any, output_mean: An
     return NonlinearMPC(adapter, horizon=10 if quick else 20, stage_steps=4, preview=False, **IDENT_SOLVER)
 
 
-def oracle_mpc(quick: bool = False, safe_slip_ppm: float | None = None) -> Any:
+def oracle_mpc(quick: bool = False, safe_slip_ppm: float | None = None,
+               storage_value_g_per_mol: float | None = None) -> Any:
     """NMPC on the first-principles catalyst (privileged state, cycle preview), safe coverage at
-    ``safe_slip_ppm`` (default :data:`ORACLE_SAFE_SLIP_PPM`). ``quick``: horizon 10 stages instead of 20."""
+    ``safe_slip_ppm`` (default :data:`ORACLE_SAFE_SLIP_PPM`), terminal value of stored NH3
+    ``storage_value_g_per_mol`` (default :data:`ORACLE_STORAGE_VALUE_G_PER_MOL`). ``quick``: horizon 10 stages
+    instead of 20."""
     from control.models import FirstPrinciplesModel
     from control.mpc import NonlinearMPC
 
-    model = FirstPrinciplesModel(safe_slip_ppm=ORACLE_SAFE_SLIP_PPM if safe_slip_ppm is None else safe_slip_ppm)
+    model = FirstPrinciplesModel(
+        safe_slip_ppm=ORACLE_SAFE_SLIP_PPM if safe_slip_ppm is None else safe_slip_ppm,
+        storage_value_g_per_mol=(ORACLE_STORAGE_VALUE_G_PER_MOL if storage_value_g_per_mol is None
+                                 else storage_value_g_per_mol))
     return NonlinearMPC(model, horizon=10 if quick else 20, stage_steps=4, preview=True,
                         solver_options=dict(ORACLE_SOLVER_OPTIONS))
 

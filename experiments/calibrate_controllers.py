@@ -12,6 +12,7 @@ at load steps, a full store slips at the next heat-up. The knob per controller (
 * ``identified_nh3`` (``identified_preview`` whose EKF also reads a tailpipe NH3 sensor): the same knob;
 * ``lookup_table`` (the industrial baseline, :class:`control.baselines.LookupTableDosing`): the window level
   ``anr_scale`` of its ANR map;
+* ``oracle_storage``: the oracle's terminal value of stored NH3 [g/mol] at its chosen safe slip;
 * ``oracle`` (first-principles NMPC with the cycle preview): the *safe slip* [ppm] that sets its safe coverage,
   the coverage whose desorption at the hottest temperature of the next 120 s gives that slip (terminal penalty
   above it; the storage value stays at its 200 g/mol): the oracle's slip handling, chosen to use the slip budget.
@@ -46,6 +47,7 @@ KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200
          "identified_preview": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "identified_nh3": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "oracle": ("safe_slip_ppm", (200.0, 300.0, 400.0, 500.0, 600.0)),
+         "oracle_storage": ("storage_value_g_per_mol", (50.0, 100.0, 200.0)),
          "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
 DEFAULT_SEEDS = (5, 6, 7, 8)
 SLIP_TARGET_PPM = 8.0
@@ -62,6 +64,8 @@ def _controller(kind: str, value: float, model: Any, rescue: bool = True) -> Any
                               nh3_sensor=kind == "identified_nh3", rescue=rescue)
     if kind == "oracle":
         return oracle_mpc(safe_slip_ppm=value)
+    if kind == "oracle_storage":
+        return oracle_mpc(storage_value_g_per_mol=value)
     if kind == "lookup_table":
         return LookupTableDosing(anr_scale=value)
     raise ValueError(f"controller must be one of {sorted(KNOBS)}, got {kind!r}")

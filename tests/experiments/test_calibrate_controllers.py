@@ -27,7 +27,8 @@ def test_choose_reports_none_when_no_value_meets_the_target():
 def test_unknown_controller_is_named():
     with pytest.raises(ValueError, match="controller"):
         _controller("lqr", 1.0, None)
-    assert set(KNOBS) == {"identified", "identified_preview", "identified_nh3", "oracle", "lookup_table"}
+    assert set(KNOBS) == {"identified", "identified_preview", "identified_nh3", "oracle", "oracle_storage",
+                          "lookup_table"}
 
 
 def test_identification_cycles_must_not_be_calibration_cycles(capsys):
