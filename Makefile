@@ -25,5 +25,12 @@ test: setup
 bench: setup
 	$(VPY) -m experiments.benchmark_speed
 
+# numba's cache (scr_env/jit.py): the per-user folder (python -m scr_env.jit prints it; ~/.cache/scr-dosing on
+# Linux), $NUMBA_CACHE_DIR/scr-dosing if NUMBA_CACHE_DIR is set, and *.nbi/*.nbc files older versions left beside the
+# sources
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	-test -x $(VPY) && $(VPY) -m scr_env.jit --clear
+	rm -rf "$${XDG_CACHE_HOME:-$$HOME/.cache}/scr-dosing"
+	$(if $(NUMBA_CACHE_DIR),rm -rf "$(NUMBA_CACHE_DIR)/scr-dosing")
+	rm -rf $(VENV) runs .pytest_cache .ruff_cache
+	find scr_env ident control experiments tests -type f \( -name '*.nbi' -o -name '*.nbc' \) -delete

@@ -17,9 +17,12 @@ Look-up-table dosing (:class:`LookupTableDosing`)
     * derated above 380 C, where the storage capacity collapses and a temperature rise releases stored NH3 (slip);
     * derated at high exhaust flow (space velocity): less residence time, NH3 passes through.
 
-    The window level ``anr_scale`` = 1.12 was calibrated on both the hot WHTC and WHSC as the largest value (steps
-    of about 0.03) with a mean slip below 8 ppm on each (a 20 % margin below the Euro VI 10 ppm limit, as a series
-    calibration keeps): WHTC 7.3 ppm / 0.61 g/kWh, WHSC 1.7 ppm / 0.70 g/kWh; 1.15 slips 14.9 ppm on the WHTC.
+    The window level ``anr_scale`` = 1.27 is the largest value (steps of 0.03) with a mean slip below 8 ppm (a 20 %
+    margin below the Euro VI 10 ppm limit, as a series calibration keeps) on every calibration cycle: seeded random
+    cycles 5-8, never the WHTC/WHSC. Chosen on the plant with NO2 chemistry and measured ageing (issue 20) by
+    ``python -m experiments.calibrate_controllers --controller lookup_table --seeds 5 6 7 8``: 1.27 gives a worst
+    mean slip of 7.6 ppm and 0.733 g/kWh mean tailpipe NOx, 1.30 slips 10.7 ppm. (The earlier 1.12 was chosen on the
+    hot WHTC and WHSC themselves, on the plant without NO2 chemistry.)
     A window ANR above 1 pays for the NH3 that oxidation consumes above ~350 C and fills the (initially empty)
     storage. An honest industrial map, not a weak one.
 
@@ -62,14 +65,42 @@ DEFAULT_ANR_BY_TEMPERATURE = (0.0, 0.0, 0.5, 0.85, 1.0, 1.0, 1.0, 0.95, 0.85, 0.
 #: (exhaust flow [mol/s], multiplier [-]) breakpoints of the space-velocity derate
 DEFAULT_FLOW_DERATE = ((0.0, 1.0), (8.0, 1.0), (14.0, 0.9), (20.0, 0.8))
 #: window ANR calibrated on the hot WHTC and WHSC (mean slip below ~8 ppm on both; see the module docstring)
-DEFAULT_ANR_SCALE = 1.12
+DEFAULT_ANR_SCALE = 1.27
 
 
-def _nox_mol_s(observation: np.ndarray) -> float:
-    return max(float(observation[0]), 0.0) * 1e-6 * max(float(observation[2]), 0.0)
+def feedforward_dose_g_s(upstream_nox_ppm: Any, exhaust_flow_mol_s: Any, anr: Any = 1.0) -> Any:
+    """The feedforward dose: AdBlue [g/s] that releases ``anr`` mol NH3 per mol of upstream NOx (NOx molar flow
+    ``ppm 1e-6 flow``; negative readings count as zero; floats or numpy arrays). Every feedforward of the project
+    -- the look-up table, :class:`FeedforwardDosing`, the identification data's dosing
+    (:mod:`ident.plant_data`) -- computes its dose here."""
+    nox_mol_s = np.maximum(upstream_nox_ppm, 0.0) * 1e-6 * np.maximum(exhaust_flow_mol_s, 0.0)
+    return anr * nox_mol_s / NH3_MOL_PER_G_ADBLUE
 
 
-class LookupTableDosing:
+class _DoseMap:
+    """A stateless policy from a dose map ``dose_g_s(observation) -> g/s`` (the subclass's): the observation check,
+    one observation or a batch, the action scaling. ``observation_size_`` is set by :meth:`attach`."""
+
+    max_rate_g_s: float
+    observation_size_: int | None = None
+
+    def dose_g_s(self, observation: np.ndarray) -> float:
+        raise NotImplementedError
+
+    def attach(self, env: Any) -> None:
+        """Remember the environment's observation size (to check observations); nothing else is read."""
+        self.observation_size_ = observation_size(env)
+
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        batch, single = check_observation(observation, self.observation_size_, max_batch=None,
+                                          owner=type(self).__name__)
+        if single:
+            return rate_to_action(self.dose_g_s(batch[0]), self.max_rate_g_s), state
+        return np.stack([rate_to_action(self.dose_g_s(row), self.max_rate_g_s) for row in batch]), state
+
+
+class LookupTableDosing(_DoseMap):
     """Open-loop dosing: AdBlue = ANR(T, flow) * engine-out NOx [mol/s] / 0.0108 mol/g (module docstring).
 
     Parameters
@@ -94,28 +125,17 @@ class LookupTableDosing:
         self.max_rate_g_s = max_rate_g_s
         self.observation_size_: int | None = None
 
-    def attach(self, env: Any) -> None:
-        """Remember the environment's observation size (to check observations); nothing else is read."""
-        self.observation_size_ = observation_size(env)
-
     def target_anr(self, inlet_temperature_k: float, exhaust_flow_mol_s: float) -> float:
         """Target ANR [-] at an inlet temperature [K] and exhaust flow [mol/s]."""
         a = float(np.interp(inlet_temperature_k - 273.15, self.temperatures_c, self.anr))
-        fl, fm = zip(*self.flow_derate)
+        fl, fm = zip(*self.flow_derate, strict=False)
         return self.anr_scale * a * float(np.interp(exhaust_flow_mol_s, fl, fm))
 
     def dose_g_s(self, observation: np.ndarray) -> float:
         """Look-up-table AdBlue rate [g/s] for an observation (clipped to the injector range)."""
         anr = self.target_anr(float(observation[1]), float(observation[2]))
-        return min(max(anr * _nox_mol_s(observation) / NH3_MOL_PER_G_ADBLUE, 0.0), self.max_rate_g_s)
-
-    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        batch, single = check_observation(observation, self.observation_size_, max_batch=None,
-                                          owner=type(self).__name__)
-        if single:
-            return rate_to_action(self.dose_g_s(batch[0]), self.max_rate_g_s), state
-        return np.stack([rate_to_action(self.dose_g_s(row), self.max_rate_g_s) for row in batch]), state
+        dose = float(feedforward_dose_g_s(float(observation[0]), float(observation[2]), anr))
+        return min(max(dose, 0.0), self.max_rate_g_s)
 
 
 class FeedforwardPI:
@@ -232,3 +252,50 @@ class FeedforwardPI:
         action = rate_to_action(rate, self._max_rate)
         return (action if single else action[None, :]), state
 
+
+
+class FeedforwardDosing(_DoseMap):
+    """Feedforward dosing without a map: ANR times the upstream NOx molar flow (:func:`feedforward_dose_g_s`),
+    optionally ramped in with the inlet temperature -- zero below ``ramp_start_k``, rising linearly to ``anr`` over
+    ``ramp_width_k`` -- and clipped to the injector range. The simple references of the project: flat ANR 0.9 / 1.0
+    (the RL references of ``experiments.train_rl``) and the demo's map (ANR 0.9 above 250 C, ramp from 200 C).
+
+    Parameters
+    ----------
+    anr : NH3-to-NOx molar ratio [-] (>= 0).
+    ramp_start_k : inlet temperature [K] below which nothing is dosed; None: the flat ANR at every temperature.
+    ramp_width_k : temperature span [K] of the linear ramp to ``anr`` (> 0).
+    max_rate_g_s : injector limit [g/s].
+
+    Stateless; ``predict`` takes an observation ``(n,)`` (action ``(1,)``) or a batch ``(B, n)`` (action
+    ``(B, 1)``), checked like every controller's.
+    """
+
+    def __init__(self, anr: float = 1.0, ramp_start_k: float | None = None, ramp_width_k: float = 50.0,
+                 max_rate_g_s: float = DEFAULT_MAX_RATE_G_S) -> None:
+        if not (np.isfinite(anr) and anr >= 0):
+            raise ValueError(f"anr must be a finite ratio >= 0, got {anr!r}")
+        if ramp_start_k is not None and not (np.isfinite(ramp_start_k) and np.isfinite(ramp_width_k)
+                                             and ramp_width_k > 0):
+            raise ValueError(f"ramp_start_k [K] and ramp_width_k [K] must be finite, the width > 0, got "
+                             f"{ramp_start_k!r}, {ramp_width_k!r}")
+        if not (np.isfinite(max_rate_g_s) and max_rate_g_s > 0):
+            raise ValueError(f"max_rate_g_s must be a positive rate [g/s], got {max_rate_g_s!r}")
+        self.anr = anr
+        self.ramp_start_k = ramp_start_k
+        self.ramp_width_k = ramp_width_k
+        self.max_rate_g_s = max_rate_g_s
+        self.observation_size_: int | None = None
+
+    def target_anr(self, inlet_temperature_k: float) -> float:
+        """ANR [-] at an inlet temperature [K]."""
+        if self.ramp_start_k is None:
+            return float(self.anr)
+        ramp = float(np.clip((inlet_temperature_k - self.ramp_start_k) / self.ramp_width_k, 0.0, 1.0))
+        return ramp * self.anr
+
+    def dose_g_s(self, observation: np.ndarray) -> float:
+        """AdBlue rate [g/s] for an observation (clipped to the injector range)."""
+        dose = float(feedforward_dose_g_s(float(observation[0]), float(observation[2]),
+                                          self.target_anr(float(observation[1]))))
+        return min(max(dose, 0.0), self.max_rate_g_s)

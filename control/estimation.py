@@ -1,4 +1,13 @@
-"""State estimation from measured signals only: an extended Kalman filter on any CasADi step function.
+"""State estimation: an extended Kalman filter on any CasADi step function, and the estimators an NMPC calls.
+
+The controller and its estimator are separate objects (do-mpc's split): at every step the NMPC calls
+``x = estimator.make_step(observation, applied_dose_g_s, disturbance)`` and then optimises from ``x``. Estimators
+(:class:`StateEstimator`):
+
+* :class:`ObservationEKF` -- the state of any identified model (``model.to_casadi()``) from the measured signals of
+  the environment's observation (the tailpipe NOx sensor, optionally an NH3 sensor), by
+  :class:`ExtendedKalmanFilter`;
+* :class:`PrivilegedState` -- the simulator's own catalyst state (the oracle: privileged information).
 
 The model is ``Function('step', [x, u], [x_next, y])`` -- the export of every identified model of :mod:`ident`
 (``model.to_casadi()``) or a first-principles step (:func:`scr_env.casadi_model.catalyst_step`). Jacobians
@@ -10,8 +19,8 @@ measurement update of ``x_k`` with ``(u_k, y_k)`` and then the time update to ``
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol, runtime_checkable
 
 import casadi as ca
 import numpy as np
@@ -71,13 +80,17 @@ class ExtendedKalmanFilter:
         self.Q_ = self._matrix(process_noise, nx, "process_noise", definite=False)
         self.R_ = self._matrix(measurement_noise, len(self.measured_), "measurement_noise", definite=True)
         self._bounds = None if state_bounds is None else self._check_bounds(state_bounds, nx)
-        x = ca.MX.sym("x", nx)
-        u = ca.MX.sym("u", nu)
+        self._functions(step)
+        self.reset()  # checks x0 and p0
+
+    def _functions(self, step: ca.Function) -> None:
+        """The time-update and measurement functions with their Jacobians (CasADi AD), from ``step``."""
+        x = ca.MX.sym("x", self.nx_)
+        u = ca.MX.sym("u", self.nu_)
         xn, y = step(x, u)
         ym = y[self.measured_]
         self._f = ca.Function("ekf_f", [x, u], [xn, ca.jacobian(xn, x)])
         self._h = ca.Function("ekf_h", [x, u], [ym, ca.jacobian(ym, x)])
-        self.reset()  # checks x0 and p0
 
     # ------------------------------------------------------------------------------------------------ checks
     @staticmethod
@@ -128,7 +141,8 @@ class ExtendedKalmanFilter:
             return float(a) * np.eye(n)
         if a.ndim == 1:
             if a.shape != (n,):
-                raise ValueError(f"{name} must have {n} variances (one per {'measured output' if name == 'measurement_noise' else 'state'}), got {a.shape[0]}")
+                per = "measured output" if name == "measurement_noise" else "state"
+                raise ValueError(f"{name} must have {n} variances (one per {per}), got {a.shape[0]}")
             if not np.all(a > 0 if definite else a >= 0):
                 raise ValueError(f"{name} variances must be {sign}, got {a.tolist()}")
             return np.diag(a)
@@ -175,6 +189,17 @@ class ExtendedKalmanFilter:
         return lo, hi
 
     # ------------------------------------------------------------------------------------------------ filter
+    def set_step(self, step: ca.Function) -> None:
+        """Replace the model by ``step`` (same state, input and output sizes), keeping the estimate, its covariance
+        and the noise settings: the route for a model whose parameters are re-estimated online (adaptive control).
+        ``TypeError`` / ``ValueError`` as the constructor's for a step of other sizes; nothing changes then."""
+        nx, nu, ny = self._check_step(step)
+        if (nx, nu) != (self.nx_, self.nu_) or max(self.measured_) >= ny:
+            raise ValueError(f"step must keep the sizes of the filter's model (nx={self.nx_}, nu={self.nu_}, at "
+                             f"least {max(self.measured_) + 1} outputs), got nx={nx}, nu={nu}, ny={ny}")
+        self._functions(step)
+        self.step_function = step
+
     def reset(self, x0: np.ndarray | None = None, p0: float | np.ndarray | None = None) -> None:
         """Restart from ``x0`` (nx values) / ``p0`` (covariance, as the constructor's; default: the constructor's).
         Both are checked (``ValueError`` naming them) before the filter changes."""
@@ -247,3 +272,121 @@ class ExtendedKalmanFilter:
             else:
                 self.innovation_ = saved[2]
             raise
+
+
+# ---------------------------------------------------------------------------------------------------- estimators
+@runtime_checkable
+class StateEstimator(Protocol):
+    """What :class:`control.mpc.NonlinearMPC` calls for the state its prediction model starts from."""
+
+    def attach(self, env: Any) -> None:
+        """Called by the controller's ``attach`` with the unwrapped environment (checks, privileged access)."""
+
+    def reset(self, observation: np.ndarray) -> None:
+        """Start of an episode, with its first observation."""
+
+    def make_step(self, observation: np.ndarray, applied_dose_g_s: float, disturbance: np.ndarray) -> np.ndarray:
+        """The state estimate for this step from the new ``observation``, the AdBlue dose [g/s] applied over the
+        interval that led to it, and the current disturbance ``(flow mol/s, inlet T K, NOx ppm, NO2 fraction)``."""
+
+
+class ObservationEKF:
+    """The state of an identified model from the environment's observation: an :class:`ExtendedKalmanFilter` on
+    ``step`` fed with the physical signals of the loop through ``signals``.
+
+    Parameters
+    ----------
+    step : the model's ``Function('step', [x, u], [x_next, y])`` on normalised signals (``model.to_casadi()``).
+    signals : :class:`control.signals.ModelSignals` of the model (input map, normalisation).
+    measured_output : index of the model output the filter corrects with, or a sequence of them.
+    measured_obs : observation index of each measured output (default ``(3,)``: the tailpipe NOx sensor; with
+        ``UreaSCREnv(nh3_sensor=True)`` the NH3 sensor is obs[5]).
+    process_noise, measurement_noise : the filter's covariances (normalised units; ``measurement_noise`` a scalar or
+        one variance per measured output).
+    state_bounds : (lower, upper) the estimate is clipped to (default +/-50 on every state).
+    initial_state : ``f(observation) -> x0`` at episode start (default zeros).
+
+    Timing: the observation of step k holds the sensor readings ``y_{k-1}`` measured after the interval whose input
+    was the applied dose ``u_{k-1}`` under the disturbance measured now. :meth:`make_step` corrects ``x_{k-1}`` with
+    ``(u_{k-1}, y_{k-1})`` and propagates to ``x_k`` (:meth:`ExtendedKalmanFilter.step`); at the first step of an
+    episode there is nothing to correct yet and the estimate is the initial state.
+    """
+
+    def __init__(self, step: ca.Function, signals: Any, measured_output: int | Sequence[int] = 2,
+                 measured_obs: Sequence[int] = (3,), process_noise: float | np.ndarray = 1e-3,
+                 measurement_noise: float | Sequence[float] = 1e-2,
+                 state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                 initial_state: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+        self.step = step
+        self.signals = signals
+        self.measured_output = measured_output
+        self.measured_obs = tuple(int(j) for j in measured_obs)
+        self.process_noise = process_noise
+        self.measurement_noise = measurement_noise
+        self.state_bounds = state_bounds
+        self.initial_state = initial_state
+        self.measured_ = ([int(measured_output)] if np.ndim(measured_output) == 0
+                          else [int(k) for k in measured_output])
+        if len(self.measured_obs) != len(self.measured_):
+            raise ValueError(f"measured_obs must name one observation index per measured output "
+                             f"({len(self.measured_)}), got {measured_obs!r}")
+        nx = int(step.size1_in(0)) if isinstance(step, ca.Function) else 0
+        bounds = state_bounds or (np.full(nx, -50.0), np.full(nx, 50.0))
+        self.ekf_ = ExtendedKalmanFilter(step, process_noise, measurement_noise, measured=self.measured_,
+                                         state_bounds=bounds)
+        self._u_last: np.ndarray | None = None
+
+    @property
+    def x_(self) -> np.ndarray:
+        """The current estimate (the filter's)."""
+        return self.ekf_.x_
+
+    def attach(self, env: Any) -> None:
+        """Check that the environment observes every entry ``measured_obs`` reads."""
+        n_obs = int(env.observation_space.shape[0])
+        if max(self.measured_obs) >= n_obs:
+            raise ValueError(f"measured_obs {self.measured_obs}: the environment observes {n_obs} signals "
+                             f"({', '.join(getattr(env, 'observation_names', []))}); an NH3-sensor model needs "
+                             "UreaSCREnv(nh3_sensor=True)")
+
+    def reset(self, observation: np.ndarray) -> None:
+        """Restart the filter at ``initial_state(observation)`` (zeros by default)."""
+        x0 = None if self.initial_state is None else self.initial_state(np.asarray(observation, dtype=np.float64))
+        self.ekf_.reset(x0)
+        self._u_last = None
+
+    def make_step(self, observation: np.ndarray, applied_dose_g_s: float, disturbance: np.ndarray) -> np.ndarray:
+        """The estimate of the model state now (class docstring); a copy."""
+        obs = np.asarray(observation, dtype=np.float64)
+        d_now = np.array([obs[2], obs[1], obs[0], disturbance[3]])
+        u_now = np.asarray(self.signals.inputs(applied_dose_g_s, d_now), dtype=np.float64)
+        if self._u_last is not None:
+            self.ekf_.step(u_now, np.array([self.signals.output_to_model(obs[j], k)
+                                            for k, j in zip(self.measured_, self.measured_obs, strict=True)]))
+        self._u_last = u_now
+        return self.ekf_.x_.copy()
+
+    def set_step(self, step: ca.Function) -> None:
+        """Continue with another model of the same sizes (:meth:`ExtendedKalmanFilter.set_step`), e.g. the same
+        model with re-estimated parameters; the estimate and its covariance carry over."""
+        self.ekf_.set_step(step)
+        self.step = step
+
+
+class PrivilegedState:
+    """The simulator's own catalyst state: the NH3 coverage of every cell, clipped to [0, 1], read from the
+    environment given to :meth:`attach` (``env.state``). Privileged information, for the oracle NMPC."""
+
+    def __init__(self) -> None:
+        self._env: Any = None
+
+    def attach(self, env: Any) -> None:
+        self._env = env
+
+    def reset(self, observation: np.ndarray) -> None:
+        pass
+
+    def make_step(self, observation: np.ndarray, applied_dose_g_s: float, disturbance: np.ndarray) -> np.ndarray:
+        if self._env is None:
+            raise RuntimeError("PrivilegedState needs attach(env) before use (it reads the simulator's state)")
+        return np.clip(self._env.state["nh3_coverage"], 0.0, 1.0)

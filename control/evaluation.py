@@ -84,54 +84,86 @@ def _timing(ms: np.ndarray) -> dict[str, float]:
             "policy_time_ms_max": float(ms.max()), "policy_time_ms_mean": float(ms.mean())}
 
 
-def run_episode(policy: Any, env: UreaSCREnv, seed: int | None = 0, *, name: str | None = None,
+def _check_max_steps(max_steps: Any) -> int | None:
+    """``max_steps`` as a positive int, or None; ``ValueError`` naming it otherwise (0 would run no step at all)."""
+    if max_steps is None:
+        return None
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"max_steps must be a positive whole number of steps or None (the whole episode), got "
+                         f"{max_steps!r}")
+    return int(max_steps)
+
+
+def run_episode(policy: Any, env: Any, seed: int | None = 0, *, name: str | None = None,
                 record_trajectory: bool = False, max_steps: int | None = None,
                 reset_options: dict | None = None) -> EpisodeResult:
     """Run ``policy`` for one episode of ``env`` (reset with ``seed``) and return its :class:`EpisodeResult`.
 
-    ``max_steps`` stops early (then ``kpis`` is empty: the environment reports them at truncation only).
+    ``env`` is any Gymnasium environment (the SCR plant, a surrogate of it, a wrapped one): it is stepped as
+    given, until it terminates or truncates, or for ``max_steps`` steps (a positive int; then ``kpis`` is empty
+    unless the episode ended: environments report them at the end, in ``info["episode_kpis"]``). The policy's
+    ``attach`` hook gets the unwrapped environment. The trajectory's plant signals (:data:`TRAJECTORY_SIGNALS`)
+    come from the info dict, the environment's drive cycle (``trace``) and state where it has them, NaN otherwise.
     """
-    env = getattr(env, "unwrapped", env)
+    max_steps = _check_max_steps(max_steps)
+    base = getattr(env, "unwrapped", env)
     if not hasattr(policy, "predict"):
         raise TypeError(f"policy must have a predict(observation, state, episode_start, deterministic) method, "
                         f"got {type(policy).__name__}")
-    obs, _ = env.reset(seed=seed, options=reset_options)
+    obs, reset_info = env.reset(seed=seed, options=reset_options)
     if hasattr(policy, "attach"):
-        policy.attach(env)
-    trace = env.trace
-    n = trace.n_steps if max_steps is None else min(int(max_steps), trace.n_steps)
-    ms = np.empty(n)
-    rec = {k: np.empty(n) for k in TRAJECTORY_SIGNALS} if record_trajectory else None
+        policy.attach(base)
+    trace = getattr(base, "trace", None)
+    n = trace.n_steps if trace is not None else None
+    if max_steps is not None:
+        n = max_steps if n is None else min(max_steps, n)
+    dt = float(getattr(base, "dt", 1.0))
+    ms: list[float] = []
+    rec: dict[str, list[float]] | None = {key: [] for key in TRAJECTORY_SIGNALS} if record_trajectory else None
     state = None
     kpis: dict[str, float] = {}
     start = np.array([True])
     not_start = np.array([False])
-    for k in range(n):
+    k = 0
+    while n is None or k < n:
         t0 = time.perf_counter()
         action, state = policy.predict(obs, state=state, episode_start=start if k == 0 else not_start,
                                        deterministic=True)
-        ms[k] = (time.perf_counter() - t0) * 1e3
-        sensor = float(obs[3])
-        obs, reward, _, truncated, info = env.step(action)
+        ms.append((time.perf_counter() - t0) * 1e3)
+        sensor = float(obs[3]) if np.size(obs) > 3 else math.nan
+        obs, reward, terminated, truncated, info = env.step(action)
         if rec is not None:
-            rec["time_s"][k] = k * env.dt
-            rec["action"][k] = float(obs[4])
-            rec["adblue_g_s"][k] = info["adblue_g_s"]
-            rec["engine_out_nox_ppm"][k] = info["engine_out_nox_ppm"]
-            rec["inlet_temperature_k"][k] = trace.scr_inlet_temperature_k[k]
-            rec["exhaust_flow_mol_s"][k] = trace.exhaust_flow_mol_s[k]
-            rec["tailpipe_nox_ppm"][k] = info["tailpipe_nox_ppm"]
-            rec["tailpipe_nh3_ppm"][k] = info["tailpipe_nh3_ppm"]
-            rec["nox_sensor_ppm"][k] = sensor
-            rec["mean_coverage"][k] = float(np.mean(env.state["nh3_coverage"]))
-            rec["reward"][k] = reward
-            rec["policy_time_ms"][k] = ms[k]
-        if truncated:
-            kpis = dict(info["episode_kpis"])
+            _record(rec, k, dt, obs, action, float(reward), info, trace, base, sensor, ms[-1])
+        k += 1
+        if terminated or truncated:
+            kpis = dict(info.get("episode_kpis", {}))
             break
     stats = dict(policy.stats()) if hasattr(policy, "stats") else {}
-    return EpisodeResult(name=name or type(policy).__name__, cycle=trace.name, seed=seed, kpis=kpis,
-                         timing=_timing(ms[:k + 1]), stats=stats, trajectory=rec)
+    cycle = trace.name if trace is not None else str(reset_info.get("cycle", type(base).__name__))
+    trajectory = None if rec is None else {key: np.asarray(v, dtype=float) for key, v in rec.items()}
+    return EpisodeResult(name=name or type(policy).__name__, cycle=cycle, seed=seed, kpis=kpis,
+                         timing=_timing(np.asarray(ms)), stats=stats, trajectory=trajectory)
+
+
+def _record(rec: dict[str, list[float]], k: int, dt: float, obs: Any, action: Any, reward: float,
+            info: dict[str, Any], trace: Any, env: Any, sensor: float, ms: float) -> None:
+    """Append step ``k``'s signals to ``rec`` (NaN where the environment does not provide one)."""
+    nan = math.nan
+    on_trace = trace is not None and k < trace.n_steps
+    state = getattr(env, "state", None)
+    rec["time_s"].append(k * dt)
+    rec["action"].append(float(obs[4]) if np.size(obs) > 4 else float(np.asarray(action).reshape(-1)[0]))
+    rec["adblue_g_s"].append(float(info.get("adblue_g_s", nan)))
+    rec["engine_out_nox_ppm"].append(float(info.get("engine_out_nox_ppm", nan)))
+    rec["inlet_temperature_k"].append(float(trace.scr_inlet_temperature_k[k]) if on_trace else nan)
+    rec["exhaust_flow_mol_s"].append(float(trace.exhaust_flow_mol_s[k]) if on_trace else nan)
+    rec["tailpipe_nox_ppm"].append(float(info.get("tailpipe_nox_ppm", nan)))
+    rec["tailpipe_nh3_ppm"].append(float(info.get("tailpipe_nh3_ppm", nan)))
+    rec["nox_sensor_ppm"].append(sensor)
+    rec["mean_coverage"].append(float(np.mean(state["nh3_coverage"])) if isinstance(state, dict)
+                                and "nh3_coverage" in state else nan)
+    rec["reward"].append(reward)
+    rec["policy_time_ms"].append(ms)
 
 
 def _as_sequence(value: Any, name: str, single: tuple[type, ...], none_is_single: bool = False) -> list:
@@ -148,37 +180,70 @@ def _as_sequence(value: Any, name: str, single: tuple[type, ...], none_is_single
     return out
 
 
-def evaluate(policy: Any, cycles: str | Iterable[str] = ("whtc",), seeds: int | None | Iterable[int | None] = (0,),
-             env_kwargs: dict | None = None, *, name: str | None = None, record_trajectory: bool = False,
+def evaluate(policy: Any, cycles: str | Iterable[str] | None = None,
+             seeds: int | None | Iterable[int | None] = (0,), env_kwargs: dict | None = None, *,
+             env: Any = None, name: str | None = None, record_trajectory: bool = False,
              max_steps: int | None = None, reset_options: dict | None = None) -> list[EpisodeResult]:
     """Run ``policy`` on every cycle x seed and return one :class:`EpisodeResult` each (cycle-major order).
 
     Parameters
     ----------
     policy : a :class:`~control.protocol.PolicyPredictor` (optionally with ``attach(env)`` and ``stats()``).
-    cycles : cycle names (or anything ``UreaSCREnv(cycle=...)`` accepts); a single one (``"whtc"``, a path, an
-        ``ExhaustTrace``) is taken as a one-element sequence, never as its characters.
+    cycles : cycle names (or anything ``UreaSCREnv(cycle=...)`` accepts), default ``("whtc",)``; a single one
+        (``"whtc"``, a path, an ``ExhaustTrace``) is taken as a one-element sequence, never as its characters.
     seeds : reset seeds (sensor noise; the random cycle); a single int (or None: unseeded) is a one-element
         sequence; numpy integers are passed on as ints.
     env_kwargs : further arguments of :class:`UreaSCREnv` (``cycle`` is set from ``cycles``).
+    env : any Gymnasium environment to run instead of building :class:`UreaSCREnv` per cycle -- a surrogate
+        (:class:`control.rl.surrogate.SurrogateSCREnv`), a wrapped or an aged plant; one episode per seed, the
+        environment is neither built nor closed here. ``cycles`` and ``env_kwargs`` must then be left out.
     name : label in results and tables (default: the policy's class name).
     record_trajectory : keep the per-step signals in ``EpisodeResult.trajectory``.
-    max_steps : stop each episode early (smoke tests); KPIs are then empty.
+    max_steps : stop each episode after this many steps (a positive int; smoke tests); KPIs are then empty.
+        ``ValueError`` for 0, negative or non-integer values.
     """
-    cycles = _as_sequence(cycles, "cycles", (str, os.PathLike, ExhaustTrace))
+    max_steps = _check_max_steps(max_steps)
     # numpy integers as Python ints (gymnasium's reset takes only those)
     seeds = [int(s) if isinstance(s, np.integer) else s
              for s in _as_sequence(seeds, "seeds", (int, np.integer), none_is_single=True)]
+    run = {"name": name, "record_trajectory": record_trajectory, "max_steps": max_steps, "reset_options": reset_options}
+    if env is not None:
+        if cycles is not None or env_kwargs:
+            raise ValueError("evaluate: give either env or cycles/env_kwargs, not both")
+        if not (hasattr(env, "reset") and hasattr(env, "step")):
+            raise TypeError(f"env must be a Gymnasium environment (reset and step), got {type(env).__name__}")
+        return [run_episode(policy, env, seed, **run) for seed in seeds]
+    cycles = _as_sequence(("whtc",) if cycles is None else cycles, "cycles", (str, os.PathLike, ExhaustTrace))
     kw = dict(env_kwargs or {})
     kw.pop("cycle", None)
     results = []
     for cycle in cycles:
-        env = UreaSCREnv(cycle=cycle, **kw)
+        plant = UreaSCREnv(cycle=cycle, **kw)
         for seed in seeds:
-            results.append(run_episode(policy, env, seed, name=name, record_trajectory=record_trajectory,
-                                       max_steps=max_steps, reset_options=reset_options))
-        env.close()
+            results.append(run_episode(policy, plant, seed, **run))
+        plant.close()
     return results
+
+
+def cycle_segment(cycle: str | os.PathLike | ExhaustTrace, seconds: float, name: str | None = None,
+                  dt: float = 0.5) -> ExhaustTrace:
+    """The first ``seconds`` of a hot drive cycle (a name or path loaded at ``dt``, or an :class:`ExhaustTrace`)
+    as an :class:`ExhaustTrace` named ``name`` (default the cycle's own name): every per-step signal cut to
+    ``round(seconds / dt)`` steps (at most the whole cycle)."""
+    import dataclasses
+
+    from scr_env.cycles import load_cycle
+
+    tr = cycle if isinstance(cycle, ExhaustTrace) else load_cycle(cycle, dt=dt)
+    if not (np.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"seconds must be a positive duration [s], got {seconds!r}")
+    n = min(round(seconds / tr.dt), tr.n_steps)
+    changes: dict[str, Any] = {f.name: getattr(tr, f.name)[:n].copy() for f in dataclasses.fields(tr)
+                               if isinstance(getattr(tr, f.name), np.ndarray) and getattr(tr, f.name).ndim >= 1
+                               and getattr(tr, f.name).shape[0] == tr.n_steps}
+    if name is not None:
+        changes["name"] = name
+    return dataclasses.replace(tr, **changes)
 
 
 def summarise(results: Iterable[EpisodeResult]) -> dict[str, dict[str, dict[str, float]]]:
@@ -224,6 +289,8 @@ def comparison_table(results: Iterable[EpisodeResult] | dict, kpis: Iterable[str
                     vals.append("-" if math.isnan(v) else f"{v:.3g}" if abs(v) < 1 else f"{v:.2f}")
             rows.append([cycle, name] + vals)
     widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(head)]
-    fmt = lambda r: "  ".join(s.ljust(w) if i < 2 else s.rjust(w) for i, (s, w) in enumerate(zip(r, widths)))
+    def fmt(r: list[str]) -> str:
+        return "  ".join(s.ljust(w) if i < 2 else s.rjust(w) for i, (s, w) in enumerate(zip(r, widths, strict=True)))
+
     lines = [fmt(head), "  ".join("-" * w for w in widths)] + [fmt(r) for r in rows]
     return "\n".join(lines)

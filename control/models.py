@@ -19,8 +19,12 @@ for any identified model of :mod:`ident`.
 
 :class:`IdentifiedModelAdapter`
     Any fitted model with ``to_casadi() -> Function('step', [x, u], [x_next, y])`` on normalised signals; the
-    adapter maps the physical signals to the model's inputs and its outputs back to (tailpipe NOx ppm, NH3 ppm),
-    and estimates the state with :class:`control.estimation.ExtendedKalmanFilter` from the measured signals only.
+    adapter maps the physical signals to the model's inputs and its outputs back to (tailpipe NOx ppm, NH3 ppm).
+
+The state each solve starts from comes from a state estimator the MPC calls (:mod:`control.estimation`): the
+oracle's :class:`~control.estimation.PrivilegedState` (the simulator's coverages), an identified model's
+:class:`~control.estimation.ObservationEKF` (the measured signals only). ``model.make_estimator()`` gives each
+model's default one.
 """
 from __future__ import annotations
 
@@ -28,47 +32,29 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import casadi as ca
-import numba
 import numpy as np
 
-from scr_env.constants import EXHAUST_HEAT_CAPACITY_J_KG_K, EXHAUST_MOLAR_MASS_KG_MOL, NH3_MOL_PER_G_ADBLUE
-from scr_env.params import DosingParams, P
-from scr_env.physics.backends import casadi_functions, cell_balance_nb
+from control.estimation import ObservationEKF, PrivilegedState
+from control.signals import ModelSignals
+from scr_env.jit import njit
+from scr_env.params import KINETIC_SLICE, DosingParams, P
+from scr_env.physics.backends import casadi_functions, cell_balance_nb, numpy_namespace
+from scr_env.physics.cell import N_RATE_CONSTANTS
+from scr_env.physics.dosing import MIN_FLOW_PER_SITE_1_S as _MIN_Q
+from scr_env.physics.kernel import thermal_trajectory
 
-_KIN = slice(P["a_ads"], P["o2_order_ox"] + 1)
-_EXP_CP = EXHAUST_MOLAR_MASS_KG_MOL * EXHAUST_HEAT_CAPACITY_J_KG_K
-_MIN_Q = 1e-12
-_N_K = 9  # rate constants per cell
-
-
-@numba.njit(cache=True)
-def _thermal_sequence(temps: np.ndarray, flow: np.ndarray, t_in: np.ndarray, c: float, ua: float, loss: float,
-                      t_amb: float, dt: float, exp_cp: float) -> np.ndarray:
-    """Solid temperatures [K] after each of len(flow) steps (rows): the kernel's closed-form implicit Euler of the
-    thermal balance, cells in flow order."""
-    n = temps.size
-    out = np.empty((flow.size, n))
-    t = temps.copy()
-    for k in range(flow.size):
-        mcp = flow[k] * exp_cp
-        decay = np.exp(-ua / mcp) if mcp > 0 else 0.0
-        coupling = mcp * (1.0 - decay)
-        t_gas = t_in[k]
-        for j in range(n):
-            t_new = (c * t[j] + dt * (coupling * t_gas + loss * t_amb)) / (c + dt * (coupling + loss))
-            t[j] = t_new
-            t_gas = t_new + (t_gas - t_new) * decay
-        out[k] = t
-    return out
+_KIN = KINETIC_SLICE
+_N_K = N_RATE_CONSTANTS  # rate constants per cell
 
 
-@numba.njit(cache=True)
+@njit
 def _safe_coverage(k: np.ndarray, q: float, target: float) -> float:
     """Coverage whose desorption into NH3- and NOx-free gas gives the mole fraction ``target`` (bisection)."""
     lo, hi = 0.0, 1.0
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        y = cell_balance_nb(mid, q, 0.0, 0.0, 0.0, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7], k[8])[2]
+        y = cell_balance_nb(mid, q, 0.0, 0.0, 0.0, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7], k[8], k[9], k[10],
+                            k[11], k[12], k[13])[2]
         if y < target:
             lo = mid
         else:
@@ -77,7 +63,7 @@ def _safe_coverage(k: np.ndarray, q: float, target: float) -> float:
 
 
 def _rate_constants_function(params: np.ndarray, o2_fraction: float) -> ca.Function:
-    """Function mapping a row of temperatures [K] to the (9, n) rate constants of cell_balance."""
+    """Function mapping a row of temperatures [K] to the (N_RATE_CONSTANTS, n) rate constants of cell_balance."""
     rate_constants = casadi_functions()[1]
     t = ca.SX.sym("t")
     k = ca.vertcat(*rate_constants(t, o2_fraction, *[float(v) for v in params[_KIN]]))
@@ -188,17 +174,19 @@ class FirstPrinciplesModel:
         return float(_safe_coverage(self._constants(np.array([temperature_k]))[0], q, self.safe_slip_ppm * 1e-6))
 
     def _temperatures(self, temps: np.ndarray, rows: np.ndarray, dt: float) -> np.ndarray:
-        p = self._params
-        return _thermal_sequence(temps, np.ascontiguousarray(rows[:, 0]), np.ascontiguousarray(rows[:, 1]),
-                                 p[P["heat_capacity_per_cell_j_k"]], p[P["gas_solid_ua_per_cell_w_k"]],
-                                 p[P["ambient_loss_per_cell_w_k"]], p[P["ambient_temperature_k"]], dt, _EXP_CP)
+        return thermal_trajectory(temps, np.ascontiguousarray(rows[:, 0]), np.ascontiguousarray(rows[:, 1]),
+                                  self._params, dt)
 
-    def prepare(self, observation: np.ndarray, u_prev_g_s: float, disturbances: np.ndarray, h: float,
-                dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def make_estimator(self) -> PrivilegedState:
+        """The oracle's state estimator: the simulator's own coverages (privileged)."""
+        return PrivilegedState()
+
+    def stage_parameters(self, observation: np.ndarray, disturbances: np.ndarray, h: float,
+                         dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(stage parameters (H, n_stage_params), safe coverage per cell) from the privileged solid temperatures
+        and the stage disturbances (module docstring)."""
         env, p = self._env, self._params
-        st = env.state
-        theta = np.clip(st["nh3_coverage"], 0.0, 1.0)
-        temps0 = st["temperature_k"].astype(np.float64)
+        temps0 = env.state["temperature_k"].astype(np.float64)
         dose = self.dosing or DosingParams()
         sites = p[P["sites_per_cell_mol"]]
         H, n = disturbances.shape[0], self.n_cells
@@ -206,12 +194,11 @@ class FirstPrinciplesModel:
         # stage temperatures: the held stage disturbance over n_sub intervals of dt (end of each stage)
         temps = self._temperatures(temps0, np.repeat(disturbances, n_sub, axis=0), dt)[n_sub - 1::n_sub]
         flow, t_in, nox, no2f = disturbances.T
-        eta = 1.0 / (1.0 + np.exp(-(t_in - dose.decomposition_t50_k) / dose.decomposition_width_k))
         pst = np.empty((H, self.n_stage_params))
-        pst[:, 0] = np.maximum(flow / sites, _MIN_Q)
-        pst[:, 1] = eta * NH3_MOL_PER_G_ADBLUE / np.maximum(flow, _MIN_Q * sites)
-        pst[:, 2] = nox * 1e-6 * (1.0 - no2f)
-        pst[:, 3] = nox * 1e-6 * no2f
+        # the plant's inlet gas (scr_env.physics.dosing) for 1 g/s of AdBlue: y_nh3 is linear in the dose, which the
+        # NLP keeps within the injector limit
+        pst[:, 0], pst[:, 1], pst[:, 2], pst[:, 3] = numpy_namespace().inlet_conditions(
+            flow, t_in, nox, no2f, 1.0, np.inf, dose.decomposition_t50_k, dose.decomposition_width_k, sites)[:4]
         pst[:, 4:] = self._constants(temps.ravel()).reshape(H, n * _N_K)
         t_hot = np.maximum(temps.max(axis=0), temps0)
         # hottest temperature further ahead, from the cycle preview (privileged) if the model is given one
@@ -224,16 +211,18 @@ class FirstPrinciplesModel:
         kh = self._constants(t_hot)
         q = max(flow_ref / sites, _MIN_Q)
         cap = np.array([_safe_coverage(kh[j], q, self.safe_slip_ppm * 1e-6) for j in range(n)])
-        return theta, pst, cap
+        return pst, cap
 
 
 class IdentifiedModelAdapter:
     """An identified model (``to_casadi()`` on normalised signals) as a :class:`control.mpc.PredictionModel`.
 
-    The model's inputs are, in order, built from the MPC's physical signals by ``input_map``; its outputs are
-    de-normalised and ``output_indices`` pick (tailpipe NOx ppm, NH3 ppm) for the objective and the slip
-    constraint. The state is estimated with an :class:`~control.estimation.ExtendedKalmanFilter` from the
-    ``measured_output`` (default: the tailpipe NOx sensor, output 3 of :mod:`ident.plant_data` data sets) only.
+    The model's inputs are built from the MPC's physical signals by ``signals`` (:class:`control.signals.ModelSignals`:
+    input map and normalisation); its outputs are de-normalised and ``output_indices`` pick (tailpipe NOx ppm, NH3
+    ppm) for the objective and the slip constraint. The adapter holds no state: the model state the NLP starts from
+    comes from a state estimator the MPC calls (:class:`control.estimation.ObservationEKF` on the same model; the
+    EKF settings given here build it in :meth:`make_estimator`, which :class:`~control.mpc.NonlinearMPC` uses when
+    it is not given an estimator of its own).
 
     Parameters
     ----------
@@ -242,21 +231,18 @@ class IdentifiedModelAdapter:
         (``Normalizer.mean_`` / ``scale_``); z = (x - mean) / scale.
     input_map : ``f(adblue_g_s, d) -> list`` of the model's physical inputs from the dose [g/s] and the
         disturbance ``d = (flow mol/s, inlet T K, NOx ppm, NO2 fraction)`` (works on CasADi symbols and floats).
-        Default: :func:`plant_data_inputs` (inlet NOx ppm, urea g/min, inlet T K, flow mol/s).
+        Default: :func:`control.signals.plant_data_inputs` (inlet NOx ppm, urea g/min, inlet T K, flow mol/s).
     output_indices : indices of (tailpipe NOx ppm, NH3 ppm) among the model outputs.
-    measured_output : index of the output the EKF corrects with (the observation's tailpipe sensor, obs[3]), or a
-        sequence of output indices read from the observation entries ``measured_obs``.
-    measured_obs : observation index of each measured output (default ``(3,)``: the tailpipe NOx sensor; with
-        ``UreaSCREnv(nh3_sensor=True)`` the NH3 sensor is obs[5]).
-    process_noise, measurement_noise : EKF covariances (normalised units; measurement_noise a scalar or one
-        variance per measured output).
-    state_bounds : (lower, upper) of the model state (NLP bounds and EKF clipping); default +/-50.
-    initial_state : ``f(observation) -> x0`` at episode start (default zeros).
+    measured_output, measured_obs, process_noise, measurement_noise, initial_state : the settings of the default
+        estimator (:class:`~control.estimation.ObservationEKF`: the output(s) it corrects with, their observation
+        entries -- default the tailpipe NOx sensor obs[3] --, its covariances and the state at episode start).
+    state_bounds : (lower, upper) of the model state (NLP bounds and the default estimator's clipping); default
+        +/-50.
     model_dt : sample time of the model [s]; a stage of the MPC is round(h / model_dt) model steps.
     terminal_cost : optional ``f(x) -> SX`` terminal cost of the MPC.
     stage_model : optional second export of the same identified model discretised at the MPC's stage length
         (continuous-time parameters, e.g. :meth:`ident.greybox.StorageGreyBox.from_params` with ``dt = h``):
-        one step per stage keeps the NLP small; the EKF still runs ``model`` at the data's sample time.
+        one step per stage keeps the NLP small; the estimator still runs ``model`` at the data's sample time.
     implicit_stage : optional ``f(x_next, x, u, h) -> (residual, y)``, the model over a stage as implicit
         equations in the NLP's end state (e.g. :meth:`ident.greybox.StorageGreyBox.implicit_stage`, on the
         normalised inputs); used instead of ``stage_model`` / ``model`` in the NLP when given: an implicit stage
@@ -270,7 +256,8 @@ class IdentifiedModelAdapter:
                  output_mean: Sequence[float], output_scale: Sequence[float],
                  input_map: Callable[[Any, Any], list] | None = None, output_indices: tuple[int, int] = (0, 1),
                  measured_output: int | Sequence[int] = 2, process_noise: float | np.ndarray = 1e-3,
-                 measurement_noise: float | Sequence[float] = 1e-2, state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                 measurement_noise: float | Sequence[float] = 1e-2,
+                 state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
                  initial_state: Callable[[np.ndarray], np.ndarray] | None = None, model_dt: float = 0.5,
                  terminal_cost: Callable[[Any], Any] | None = None, stage_model: Any = None,
                  implicit_stage: Callable[[Any, Any, Any, float], tuple[Any, Any]] | None = None,
@@ -291,32 +278,33 @@ class IdentifiedModelAdapter:
         self.terminal_cost_fn = terminal_cost
         self.stage_model = stage_model
         self.implicit_stage = implicit_stage
-        from control.estimation import ExtendedKalmanFilter
-
+        self.measured_obs = tuple(int(j) for j in measured_obs)
+        n_measured = 1 if np.ndim(measured_output) == 0 else len(measured_output)
+        if len(self.measured_obs) != n_measured:
+            raise ValueError(f"measured_obs must name one observation index per measured output ({n_measured}), "
+                             f"got {measured_obs!r}")
+        self.signals = ModelSignals(input_mean, input_scale, output_mean, output_scale, input_map)
         self.step_ = model.to_casadi()
         self.stage_step_ = None if stage_model is None else stage_model.to_casadi()
         self.nx = int(self.step_.size1_in(0))
-        self._um, self._us = np.asarray(input_mean, float), np.asarray(input_scale, float)
-        self._ym, self._ys = np.asarray(output_mean, float), np.asarray(output_scale, float)
         bounds = state_bounds or (np.full(self.nx, -50.0), np.full(self.nx, 50.0))
         self._bounds = (np.asarray(bounds[0], float), np.asarray(bounds[1], float))
-        self._measured = [int(measured_output)] if np.ndim(measured_output) == 0 else [int(k) for k in measured_output]
-        self.measured_obs = tuple(int(j) for j in measured_obs)
-        if len(self.measured_obs) != len(self._measured):
-            raise ValueError(f"measured_obs must name one observation index per measured output "
-                             f"({len(self._measured)}), got {measured_obs!r}")
-        self.ekf_ = ExtendedKalmanFilter(self.step_, process_noise, measurement_noise, measured=self._measured,
-                                         state_bounds=bounds)
-        self._u_last: np.ndarray | None = None
 
-    def _u_norm(self, adblue: Any, d: Any) -> Any:
-        f = self.input_map or plant_data_inputs
-        phys = f(adblue, d)
-        return [(phys[i] - self._um[i]) / self._us[i] for i in range(len(phys))]
+    def make_estimator(self) -> ObservationEKF:
+        """A new :class:`~control.estimation.ObservationEKF` on this model with the estimator settings given to the
+        constructor."""
+        return ObservationEKF(self.step_, self.signals, measured_output=self.measured_output,
+                              measured_obs=self.measured_obs, process_noise=self.process_noise,
+                              measurement_noise=self.measurement_noise, state_bounds=self.state_bounds_arg,
+                              initial_state=self.initial_state)
+
+    def stage_inputs(self, u: Any, d: Any) -> Any:
+        """The model's normalised input vector (CasADi) for the dose ``u`` [g/s] under the disturbance ``d``."""
+        return ca.vertcat(*self.signals.inputs(u, d))
 
     def _simulate(self, x: Any, u: Any, d: Any, h: float) -> tuple[Any, Any]:
         """Model steps of model_dt over one stage of length h (input held): (x at the end, y of the last step)."""
-        un = ca.vertcat(*self._u_norm(u, d))
+        un = self.stage_inputs(u, d)
         if self.stage_step_ is not None:
             return self.stage_step_(x, un)
         y = None
@@ -329,10 +317,10 @@ class IdentifiedModelAdapter:
         last stage is kept, so its expressions are built (and evaluated at every solve) once, not twice."""
         key = (x_next, x, u, d, h)
         last = getattr(self, "_last_stage", None)
-        if last is not None and all(a is b for a, b in zip(last[0], key)):
+        if last is not None and all(a is b for a, b in zip(last[0], key, strict=True)):
             return last[1]
         if self.implicit_stage is not None:
-            stage = self.implicit_stage(x_next, x, ca.vertcat(*self._u_norm(u, d)), h)
+            stage = self.implicit_stage(x_next, x, self.stage_inputs(u, d), h)
         else:
             xs, y = self._simulate(x, u, d, h)
             stage = (x_next - xs, y)
@@ -343,10 +331,13 @@ class IdentifiedModelAdapter:
         self._h = h
         return self._stage(x_next, x, u, d, h)[0]
 
-    def outputs(self, x_next: Any, x: Any, u: Any, d: Any, p: Any) -> Any:
-        y = self._stage(x_next, x, u, d, self._h)[1]
+    def physical_outputs(self, y: Any) -> Any:
+        """(tailpipe NOx ppm, NH3 ppm) from the model outputs ``y`` (de-normalised ``output_indices``)."""
         i, j = self.output_indices
-        return ca.vertcat(y[i] * self._ys[i] + self._ym[i], y[j] * self._ys[j] + self._ym[j])
+        return ca.vertcat(self.signals.output_to_physical(y[i], i), self.signals.output_to_physical(y[j], j))
+
+    def outputs(self, x_next: Any, x: Any, u: Any, d: Any, p: Any) -> Any:
+        return self.physical_outputs(self._stage(x_next, x, u, d, self._h)[1])
 
     def terminal_cost(self, x: Any, p: Any) -> Any:
         return 0 if self.terminal_cost_fn is None else self.terminal_cost_fn(x)
@@ -355,32 +346,12 @@ class IdentifiedModelAdapter:
         return self._bounds
 
     def attach(self, env: Any) -> None:
-        n_obs = int(env.observation_space.shape[0])
-        if max(self.measured_obs) >= n_obs:
-            raise ValueError(f"measured_obs {self.measured_obs}: the environment observes {n_obs} signals "
-                             f"({', '.join(getattr(env, 'observation_names', []))}); an NH3-sensor model needs "
-                             "UreaSCREnv(nh3_sensor=True)")
+        pass
 
     def reset(self, observation: np.ndarray) -> None:
-        x0 = None if self.initial_state is None else self.initial_state(np.asarray(observation, dtype=np.float64))
-        self.ekf_.reset(x0)
-        self._u_last = None
+        pass
 
-    def prepare(self, observation: np.ndarray, u_prev_g_s: float, disturbances: np.ndarray, h: float,
-                dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        obs = np.asarray(observation, dtype=np.float64)
-        d_now = np.array([obs[2], obs[1], obs[0], disturbances[0, 3]])
-        u_now = np.asarray(self._u_norm(u_prev_g_s, d_now), dtype=np.float64)
-        if self._u_last is not None:
-            # obs[3] was measured after the last interval, whose input was the applied dose u_prev_g_s under the
-            # disturbance now measured: correct x_{k-1} with (u_{k-1}, y_{k-1}), then propagate to x_k
-            self.ekf_.step(u_now, np.array([(obs[j] - self._ym[k]) / self._ys[k]
-                                            for k, j in zip(self._measured, self.measured_obs)]))
-        self._u_last = u_now
-        return self.ekf_.x_.copy(), np.zeros((disturbances.shape[0], 0)), np.zeros(0)
-
-
-def plant_data_inputs(adblue_g_s: Any, d: Any) -> list:
-    """Physical inputs of :mod:`ident.plant_data` models: inlet NOx ppm, urea g/min (AdBlue g/s * 60 * 0.325),
-    inlet temperature K, exhaust flow mol/s."""
-    return [d[2], adblue_g_s * 60.0 * 0.325, d[1], d[0]]
+    def stage_parameters(self, observation: np.ndarray, disturbances: np.ndarray, h: float,
+                         dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """No stage or terminal parameters: the identified model is fixed."""
+        return np.zeros((disturbances.shape[0], 0)), np.zeros(0)

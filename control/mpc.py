@@ -15,9 +15,13 @@ default weights are the environment's economic reward (20 per g NOx, 60 per g NH
 disturbance is held at its measured value over the horizon unless ``preview=True`` (then the cycle preview from
 ``env.disturbance_preview``, privileged information, given through :meth:`NonlinearMPC.attach`).
 
-Model sources (:class:`PredictionModel`, in :mod:`control.models`): the first-principles catalyst with privileged
-state (the oracle) and any identified model's CasADi export with an EKF for its state. The NLP is an SX
-``nlpsol`` (IPOPT by default), warm-started from the previous solution shifted by one interval.
+Model sources (:class:`PredictionModel`, in :mod:`control.models`): the first-principles catalyst (the oracle) and
+any identified model's CasADi export. The state every solve starts from comes from a state estimator of its own
+(:class:`control.estimation.StateEstimator`, do-mpc's split): at each step the controller calls
+``x0 = estimator.make_step(observation, applied dose, disturbance)`` and then solves from ``x0`` -- the oracle's
+:class:`~control.estimation.PrivilegedState`, an identified model's :class:`~control.estimation.ObservationEKF`
+(``model.make_estimator()`` unless one is given). The NLP is an SX ``nlpsol`` (IPOPT by default), warm-started
+from the previous solution.
 
 A failed solve (solver status not successful, a non-finite result, or one of the numerical exceptions of
 :data:`SOLVE_ERRORS`) never raises mid-episode: the controller applies the last good plan while it lasts, then the
@@ -44,6 +48,7 @@ import casadi as ca
 import numpy as np
 
 from control.baselines import LookupTableDosing
+from control.estimation import StateEstimator
 from control.protocol import (
     DEFAULT_MAX_RATE_G_S,
     N_BASE_OBSERVATION,
@@ -53,7 +58,7 @@ from control.protocol import (
     observation_size,
     rate_to_action,
 )
-from scr_env.constants import NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
+from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM, NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
 
 #: disturbance columns per stage, as ``UreaSCREnv.disturbance_preview``: flow mol/s, inlet T K, NOx ppm, NO2 frac
 N_DISTURBANCE = 4
@@ -62,7 +67,7 @@ N_DISTURBANCE = 4
 #:
 #: * ``RuntimeError``: what CasADi raises for any failure inside a ``Function`` call -- the NLP solver with
 #:   ``error_on_fail``, NaN/Inf in its functions with regularity checks, a QP solver giving up;
-#: * ``numpy.linalg.LinAlgError``: the state estimator's innovation covariance (EKF in ``model.prepare``)
+#: * ``numpy.linalg.LinAlgError``: the state estimator's innovation covariance (``estimator.make_step``)
 #:   numerically singular -- a degenerate estimate, not a wrong argument (it is a ``ValueError`` subclass: only it
 #:   is caught, not ``ValueError`` in general);
 #: * ``ArithmeticError`` (``FloatingPointError`` -- numpy under ``errstate(all="raise")``, or the EKF refusing an
@@ -109,10 +114,13 @@ class PredictionModel(Protocol):
     def reset(self, observation: np.ndarray) -> None:
         """Start of an episode."""
 
-    def prepare(self, observation: np.ndarray, u_prev_g_s: float, disturbances: np.ndarray,
-                h: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Numeric (x0, stage parameters (H, n_stage_params), terminal parameters) for this step; estimators
-        update here from the observation and the last applied dose."""
+    def stage_parameters(self, observation: np.ndarray, disturbances: np.ndarray, h: float,
+                         dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Numeric (stage parameters (H, n_stage_params), terminal parameters (n_terminal_params,)) for this step,
+        from the observation and the (H, 4) stage disturbances; stages of ``h`` seconds, control interval ``dt``."""
+
+    def make_estimator(self) -> StateEstimator:
+        """The model's default state estimator (used when the controller is given none)."""
 
 
 class NonlinearMPC:
@@ -129,6 +137,8 @@ class NonlinearMPC:
     max_rate_change_g_s2 : dosing rate limit [g/s per s].
     preview : use the cycle preview (privileged) instead of holding the measured disturbance.
     fallback : policy applied when a solve fails (default: the look-up table).
+    estimator : the :class:`~control.estimation.StateEstimator` the solves start from (default
+        ``model.make_estimator()``); an object of its own, reusable with any model of the same state.
     slip_guard : ``(observation index, ppm)`` of a tailpipe NH3 sensor, or None. On a failed solve, while that
         reading is above the threshold, nothing is dosed (neither the last plan nor the fallback): a failed solve
         typically comes when the catalyst already slips (heating desorbs its store and the slip bound cannot be
@@ -143,11 +153,13 @@ class NonlinearMPC:
     """
 
     def __init__(self, model: PredictionModel, horizon: int = 20, stage_steps: int = 4,
-                 weights: MPCWeights | None = None, slip_limit_ppm: float = 10.0,
+                 weights: MPCWeights | None = None, slip_limit_ppm: float = EURO_VI_NH3_SLIP_LIMIT_PPM,
                  max_rate_change_g_s2: float = 1.0, preview: bool = False, fallback: Any = None,
                  solver: str = "ipopt", solver_options: dict | None = None,
-                 warm_start_duals: bool | None = None, slip_guard: tuple[int, float] | None = None) -> None:
+                 warm_start_duals: bool | None = None, slip_guard: tuple[int, float] | None = None,
+                 estimator: StateEstimator | None = None) -> None:
         self.model = model
+        self.estimator = model.make_estimator() if estimator is None else estimator
         self.horizon = horizon
         self.stage_steps = stage_steps
         self.weights = weights
@@ -175,7 +187,7 @@ class NonlinearMPC:
     # ------------------------------------------------------------------------------------------- protocol hooks
     def attach(self, env: Any) -> None:
         """Read dt, the injector limit and the observation size; keep the env for the cycle preview if ``preview``;
-        attach the model."""
+        attach the model and the estimator."""
         n_obs = observation_size(env)
         if self.slip_guard is not None and self.slip_guard[0] >= n_obs:
             raise ValueError(f"slip_guard reads observation index {self.slip_guard[0]}, but the environment's "
@@ -186,6 +198,7 @@ class NonlinearMPC:
         self.max_rate_g_s = float(env.max_rate_g_s)
         self._env = env if self.preview else None
         self.model.attach(env)
+        self.estimator.attach(env)
         self.observation_size_ = n_obs
 
     def stats(self) -> dict[str, float]:
@@ -296,6 +309,7 @@ class NonlinearMPC:
         if is_episode_start(episode_start):
             self._reset_episode()
             self.model.reset(obs)
+            self.estimator.reset(obs)
         if self._solver is None:
             self._build()
         t0, c0 = time.perf_counter(), time.thread_time()
@@ -327,11 +341,11 @@ class NonlinearMPC:
 
     def _min_observation_size(self) -> int:
         """Entries an observation needs before :meth:`attach` tells the exact size: the default observation, and
-        the entries the slip guard and the model's estimator read (``measured_obs``)."""
+        the entries the slip guard and the estimator read (``measured_obs``)."""
         n = N_BASE_OBSERVATION
         if self.slip_guard is not None:
             n = max(n, self.slip_guard[0] + 1)
-        measured = getattr(self.model, "measured_obs", None)
+        measured = getattr(self.estimator, "measured_obs", None)
         if measured:
             n = max(n, max(int(j) for j in measured) + 1)
         return n
@@ -340,7 +354,8 @@ class NonlinearMPC:
         H, nx = self._H, self._nx
         h = self.stage_steps * self.dt
         dist = self._disturbances(obs)
-        x0, pst, pt = self.model.prepare(obs, self._u_prev, dist, h, self.dt)
+        x0 = self.estimator.make_step(obs, self._u_prev, dist[0])
+        pst, pt = self.model.stage_parameters(obs, dist, h, self.dt)
         pst = np.zeros((H, 1)) if pst.size == 0 else pst
         pt = np.zeros(1) if pt.size == 0 else pt
         pv = np.concatenate([x0, dist.ravel(), pst.ravel(), pt, [self._u_prev]])

@@ -1,46 +1,64 @@
-"""Run folders for experiment outputs: ``runs/<name>/<YYYYmmdd-HHMMSS>/``."""
+"""Run folders for experiment outputs: ``runs/<name>/<YYYYmmdd-HHMMSS>/``, written atomically.
+
+An experiment calls :func:`run_folder` first, with its ``--json`` path: the folder is created and both are checked
+for writing (:func:`scr_env.fileio.check_output_folder`, :func:`~scr_env.fileio.check_output_file`) before the long
+run starts, so a read-only folder or a mistyped path fails at once with an error naming it, not with a raw
+``OSError`` after an hour. Every file then goes through :mod:`scr_env.fileio`'s atomic writes (a temporary file in
+the same folder, then ``os.replace``): a full disk or an interrupt leaves the previous good file intact.
+"""
 from __future__ import annotations
 
-import json
+import contextlib
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from scr_env.fileio import atomic_path, atomic_write_text, check_output_file, check_output_folder, write_json
+
+__all__ = ["run_folder", "save_figure", "save_results", "write_json", "write_text"]
 
 
-def run_folder(name: str, root: str | Path = "runs") -> Path:
-    """Create and return ``<root>/<name>/<YYYYmmdd-HHMMSS>/`` (a numeric suffix if it already exists)."""
+def run_folder(name: str, root: str | Path = "runs", json_path: str | Path | None = None,
+               folder: str | Path | None = None) -> Path:
+    """Create and return ``<root>/<name>/<YYYYmmdd-HHMMSS>/`` (a numeric suffix if it already exists), or
+    ``folder`` if given (an experiment's ``--out``; it may exist), checked writable; ``json_path`` (the
+    experiment's ``--json``), if given, is checked too (its folder exists and is writable, it is not a folder).
+    ``OSError`` subclasses naming the folder or the file otherwise."""
+    if json_path is not None:
+        check_output_file(json_path, "--json file")
+    if folder is not None:
+        folder = Path(folder)
+        if not folder.exists():
+            folder.mkdir(parents=True)
+        return check_output_folder(folder, "output folder")
     base = Path(root) / name / time.strftime("%Y%m%d-%H%M%S")
     path, i = base, 1
     while path.exists():
         path = base.with_name(f"{base.name}-{i}")
         i += 1
-    path.mkdir(parents=True)
-    return path
+    try:
+        path.mkdir(parents=True)
+    except OSError as exc:
+        raise type(exc)(exc.errno, f"cannot create the run folder {path}: {exc.strerror}") from None
+    return check_output_folder(path, "run folder")
 
 
-def _default(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"cannot write {type(obj).__name__} as JSON")
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically; return the path."""
+    return atomic_write_text(path, text)
 
 
-def write_json(path: str | Path, obj: Any) -> Path:
-    """Write ``obj`` as indented JSON (numpy arrays and scalars converted); create parent folders."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(obj, indent=2, default=_default), encoding="utf-8")
-    return path
+@contextlib.contextmanager
+def save_figure(path: str | Path) -> Iterator[Path]:
+    """``with save_figure(path) as tmp: fig.savefig(tmp)``: the figure replaces ``path`` only once fully written."""
+    with atomic_path(path) as tmp:
+        yield tmp
 
 
 def save_results(out: Path, filename: str, doc: Any, json_path: str | Path | None = None) -> Path:
     """Write ``doc`` as ``out/filename`` (the run folder's record) and, if given, also to ``json_path`` (the
-    ``--json`` argument of every experiment); return the run-folder file."""
+    ``--json`` argument of every experiment); return the run-folder file. Both writes are atomic."""
     path = write_json(Path(out) / filename, doc)
     if json_path is not None:
         write_json(json_path, doc)

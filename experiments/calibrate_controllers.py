@@ -9,6 +9,8 @@ at load steps, a full store slips at the next heat-up. The knob per controller (
 * ``identified`` (grey-box NMPC, no preview): the terminal value of stored NH3 [g AdBlue equivalent per mol];
 * ``identified_preview`` (the same NMPC with the cycle preview of the engine-out disturbances): the same knob;
 * ``identified_nh3`` (``identified_preview`` whose EKF also reads a tailpipe NH3 sensor): the same knob;
+* ``lookup_table`` (the industrial baseline, :class:`control.baselines.LookupTableDosing`): the window level
+  ``anr_scale`` of its ANR map;
 * ``oracle`` (first-principles NMPC with the cycle preview): the *safe slip* [ppm] that sets its safe coverage,
   the coverage whose desorption at the hottest temperature of the next 120 s gives that slip (terminal penalty
   above it; the storage value stays at its 200 g/mol).
@@ -18,7 +20,7 @@ identification records use seeds 1-3, the benchmarks the hot WHTC and WHSC) and 
 calibration (:mod:`control.baselines`) picks it: the lowest mean tailpipe NOx among the values whose mean NH3 slip
 stays below ``--slip-target`` (8 ppm: a 20 % margin below the 10 ppm limit) on *every* calibration cycle. The
 result and all runs go to ``runs/calibrate_controllers/<stamp>/``; the chosen numbers are the defaults of
-:mod:`experiments.control_benchmark` (``IDENTIFIED_STORAGE_VALUE``, ``ORACLE_SAFE_SLIP_PPM``).
+:mod:`control.factory` (``IDENTIFIED_STORAGE_VALUE``, ``ORACLE_SAFE_SLIP_PPM``).
 """
 from __future__ import annotations
 
@@ -29,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from control.baselines import LookupTableDosing
+from control.factory import IDENT_EXCITATION, IDENT_SEEDS, greybox_record, identified_mpc, oracle_mpc
 from experiments._runs import run_folder, save_results
 from experiments.sweep import add_arguments, from_args, run_sweep
 
@@ -36,31 +40,35 @@ from experiments.sweep import add_arguments, from_args, run_sweep
 KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "identified_preview": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "identified_nh3": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
-         "oracle": ("safe_slip_ppm", (20.0, 50.0, 100.0, 200.0))}
+         "oracle": ("safe_slip_ppm", (20.0, 50.0, 100.0, 200.0)),
+         "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
 DEFAULT_SEEDS = (5, 6)
 SLIP_TARGET_PPM = 8.0
 
 
-def _controller(kind: str, value: float, ident: dict[str, Any] | None) -> Any:
-    from experiments import control_benchmark as cb
-
+def _controller(kind: str, value: float, model: Any) -> Any:
+    """The controller ``kind`` with its knob at ``value`` (``model``: the fitted grey-box of the identified kinds)."""
     if kind == "identified":
-        return cb.identified_mpc(ident, storage_value_g_per_mol=value, preview=False, nh3_sensor=False)
+        return identified_mpc(model, storage_value_g_per_mol=value, preview=False, nh3_sensor=False)
     if kind == "identified_preview":
-        return cb.identified_mpc(ident, storage_value_g_per_mol=value, preview=True, nh3_sensor=False)
+        return identified_mpc(model, storage_value_g_per_mol=value, preview=True, nh3_sensor=False)
     if kind == "identified_nh3":
-        return cb.identified_mpc(ident, storage_value_g_per_mol=value, preview=True, nh3_sensor=True)
+        return identified_mpc(model, storage_value_g_per_mol=value, preview=True, nh3_sensor=True)
     if kind == "oracle":
-        return cb.oracle_mpc(safe_slip_ppm=value)
+        return oracle_mpc(safe_slip_ppm=value)
+    if kind == "lookup_table":
+        return LookupTableDosing(anr_scale=value)
     raise ValueError(f"controller must be one of {sorted(KNOBS)}, got {kind!r}")
 
 
-def episode(kind: str, value: float, seed: int, ident: dict[str, Any] | None) -> dict[str, Any]:
-    """One closed-loop episode of ``kind`` with its knob at ``value`` on the random cycle of ``seed``."""
+def episode(kind: str, value: float, seed: int, model_file: str | None) -> dict[str, Any]:
+    """One closed-loop episode of ``kind`` with its knob at ``value`` on the random cycle of ``seed`` (the grey-box
+    model read from ``model_file`` for the identified kinds)."""
     from control.evaluation import evaluate
+    from ident.greybox import StorageGreyBox
 
     t0 = time.perf_counter()
-    policy = _controller(kind, value, ident)
+    policy = _controller(kind, value, None if model_file is None else StorageGreyBox.load(model_file))
     res = evaluate(policy, cycles=("random",), seeds=(seed,), env_kwargs=getattr(policy, "env_kwargs", None),
                    name=kind)[0]
     k = res.kpis
@@ -94,29 +102,26 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), help="random calibration cycles")
     ap.add_argument("--slip-target", type=float, default=SLIP_TARGET_PPM, help="mean slip bound per cycle [ppm]")
     ap.add_argument("--ident-seeds", nargs="+", type=int, default=None,
-                    help="random cycles of the grey-box identification (default: control_benchmark.IDENT_SEEDS)")
+                    help="random cycles of the grey-box identification (default: control.factory.IDENT_SEEDS)")
     ap.add_argument("--excitation", nargs=4, type=float, default=None, metavar=("LOW", "HIGH", "HOLD_MIN", "HOLD_MAX"),
-                    help="RandomSteps ANR excitation of the identification (default: control_benchmark's)")
+                    help="RandomSteps ANR excitation of the identification (default: control.factory's)")
     add_arguments(ap)
     args = ap.parse_args(argv)
     if args.workers is None:
         args.workers = 2
-    from experiments.control_benchmark import IDENT_SEEDS
-
     if set(args.ident_seeds or IDENT_SEEDS) & set(args.seeds):
         ap.error("--ident-seeds and --seeds must differ: calibration cycles are not identification data")
-    out = run_folder("calibrate_controllers")
+    out = run_folder("calibrate_controllers", json_path=args.json)
     t0 = time.perf_counter()
-    ident = None
+    ident, model_file = None, None
     if any(c.startswith("identified") for c in args.controller):
-        from experiments import control_benchmark as cb
-
-        seeds = tuple(args.ident_seeds or cb.IDENT_SEEDS)
-        excitation = tuple(args.excitation or cb.IDENT_EXCITATION)
+        seeds = tuple(args.ident_seeds or IDENT_SEEDS)
+        excitation = tuple(args.excitation or IDENT_EXCITATION)
         print(f"identifying the grey-box storage model (random cycles {seeds}, RandomSteps{excitation}) ...",
               flush=True)
-        ident = cb.identify(seeds, excitation)
-    tasks = [{"kind": c, "value": v, "seed": s, "ident": ident if c.startswith("identified") else None}
+        model, ident = greybox_record(seeds, excitation)
+        model_file = str(model.save(out / "greybox_model"))
+    tasks = [{"kind": c, "value": v, "seed": s, "model_file": model_file if c.startswith("identified") else None}
              for c in args.controller for v in (args.values or KNOBS[c][1]) for s in args.seeds]
     rows = run_sweep(episode, tasks, description="calibration episodes", **from_args(args))
     doc: dict[str, Any] = {"slip_target_ppm": args.slip_target, "seeds": args.seeds, "rows": rows, "chosen": {},
@@ -126,7 +131,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         doc["chosen"][c] = res
         print(f"\n{c}: {KNOBS[c][0]} -> mean tailpipe NOx [g/kWh], worst mean slip [ppm], solver failures")
         for t in res["table"]:
-            print(f"  {t['value']:7.1f}  {t['mean_tailpipe_nox_g_per_kwh']:.3f}  "
+            print(f"  {t['value']:7.4g}  {t['mean_tailpipe_nox_g_per_kwh']:.3f}  "
                   f"{t['max_mean_nh3_slip_ppm']:6.2f}  {t['solver_failures']:.0f}")
         print(f"  chosen: {res['value']}")
     doc["wall_time_s"] = time.perf_counter() - t0

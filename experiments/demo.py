@@ -2,7 +2,8 @@
 
 1. The simulator over the real WHTC and WHSC with a simple open-loop dosing map: KPI tables, SCR-inlet signal
    ranges against the thesis data, trajectory figures.
-2. The identify-then-control loop in its quick form (:mod:`experiments.identify_then_control` ``--quick``):
+2. The identify-then-control loop in its quick form (``python -m experiments.identify_then_control --quick``, run
+   as a program):
    excitation experiments, identification (linear, RPEM, grey-box), NMPC on each identified model, closed loop on
    the first 600 s of the held-out WHTC against the baselines, the oracle NMPC and the shipped RL policies.
 
@@ -12,34 +13,26 @@ identify-then-control study: ``python -m experiments.identify_then_control`` (ab
 from __future__ import annotations
 
 import argparse
+import json
+import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from experiments._runs import run_folder, write_json
-from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+from control.baselines import FeedforwardDosing
+from control.plots import pyplot
+from experiments._runs import run_folder, save_figure, write_json, write_text
 from scr_env.rollout import Trajectory, rollout
 
-MAX_RATE_G_S = 3.0  # g/s, the default injector limit (scr_env.params.DosingParams)
-
-
-def feedforward_dosing(obs: np.ndarray) -> np.ndarray:
-    """A minimal open-loop dosing map: ANR 0 below 200 C, 0.9 above 250 C, linear in between (demo only; the
-    calibrated industrial baseline lives in ``control.baselines``)."""
-    nox_ppm, t_k, flow = float(obs[0]), float(obs[1]), float(obs[2])
-    anr = float(np.clip((t_k - 473.15) / 50.0, 0.0, 1.0)) * 0.9
-    rate = anr * nox_ppm * 1e-6 * flow / NH3_MOL_PER_G_ADBLUE  # g/s AdBlue
-    return np.array([2.0 * min(rate, MAX_RATE_G_S) / MAX_RATE_G_S - 1.0], dtype=np.float32)
+#: A minimal open-loop dosing map: ANR 0 below 200 C, 0.9 above 250 C, linear in between (demo only; the
+#: calibrated industrial baseline is ``control.baselines.LookupTableDosing``).
+DEMO_DOSING = {"anr": 0.9, "ramp_start_k": 473.15, "ramp_width_k": 50.0}
 
 
 def _figure(tr: Trajectory, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     t = tr["time_s"]
     fig, axes = plt.subplots(4, 1, figsize=(10, 9), sharex=True)
     axes[0].plot(t, tr["inlet_nox_ppm"], color="0.6", lw=0.7, label="engine-out NOx")
@@ -61,7 +54,8 @@ def _figure(tr: Trajectory, path: Path) -> None:
     fig.suptitle(f"{tr.cycle.upper()}: NOx conversion {100 * k['nox_conversion']:.1f} %, tailpipe "
                  f"{k['tailpipe_nox_g_per_kwh']:.3f} g/kWh, mean NH3 slip {k['mean_nh3_slip_ppm']:.1f} ppm")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with save_figure(path) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
 
 
@@ -71,19 +65,19 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--seed", type=int, default=0, help="sensor-noise seed (default 0)")
     ap.add_argument("--overview-only", action="store_true", help="skip the identify-then-control part (seconds)")
     args = ap.parse_args(argv)
-    out = run_folder("demo")
+    out = run_folder("demo", json_path=args.json)
     start = time.perf_counter()
     results: dict = {"cycles": {}}
     lines = ["# scr-dosing demo: the simulator over the real WHTC and WHSC", "",
-             "Open-loop dosing map (ANR 0.9 above 250 C, ramp from 200 C), hot start, empty catalyst, "
-             f"sensor-noise seed {args.seed}.", "",
-             "| cycle | NOx conversion | engine-out NOx [g/kWh] | tailpipe NOx [g/kWh] (Euro VI limit) | "
-             "mean / peak NH3 slip [ppm] | AdBlue [g] | work [kWh] |", "|---|---|---|---|---|---|---|"]
+             ("Open-loop dosing map (ANR 0.9 above 250 C, ramp from 200 C), hot start, empty catalyst, "
+              f"sensor-noise seed {args.seed}."), "",
+             ("| cycle | NOx conversion | engine-out NOx [g/kWh] | tailpipe NOx [g/kWh] (Euro VI limit) | "
+              "mean / peak NH3 slip [ppm] | AdBlue [g] | work [kWh] |"), "|---|---|---|---|---|---|---|"]
     ranges = ["", "SCR inlet signals (min / mean / max) against the thesis' WHTC data (Paper III, Table 1):", "",
               "| cycle | inlet NOx [ppm] | exhaust flow [mol/s] | inlet temperature [K] |", "|---|---|---|---|"]
     figures = {}
     for cycle, limit in (("whtc", 0.46), ("whsc", 0.40)):
-        tr = rollout(feedforward_dosing, cycle=cycle, seed=args.seed)
+        tr = rollout(FeedforwardDosing(**DEMO_DOSING), cycle=cycle, seed=args.seed)
         k = tr.kpis
         results["cycles"][cycle] = k
         figures[out / f"{cycle}_trajectory.png"] = tr
@@ -106,11 +100,11 @@ def main(argv: list[str] | None = None) -> dict:
         lines += ["", f"![{p.stem}]({p.name})"]
     print("\n".join(lines))
     if not args.overview_only:
-        from experiments import identify_then_control
-
         print("\n== identify-then-control (quick) ==", flush=True)
         sub = out / "identify_then_control"
-        doc = identify_then_control.run(quick=True, out=sub, sweep_kwargs={"backend": "local", "workers": 2})
+        subprocess.run([sys.executable, "-m", "experiments.identify_then_control", "--quick", "--out", str(sub),
+                        "--workers", "2"], check=True)
+        doc = json.loads((sub / "identify_then_control.json").read_text(encoding="utf-8"))
         results["identify_then_control"] = {"gap_closed": doc["gap_closed"], "kpis": doc["kpis"]}
         text = (sub / "report.md").read_text(encoding="utf-8")
         text = text.replace("](", "](identify_then_control/").replace("# Identify-then-control",
@@ -124,7 +118,7 @@ def main(argv: list[str] | None = None) -> dict:
         write_json(args.json, results)
     for path, tr in figures.items():
         _figure(tr, path)
-    report.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text(report, "\n".join(lines) + "\n")
     return results
 
 

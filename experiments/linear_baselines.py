@@ -89,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.synthetic and args.design is not None:
         ap.error("--design is a dosing design of the simulator data; --synthetic uses the surrogate instead")
     design = None if args.synthetic else (args.design or PAPER4_DEFAULT_DESIGN)
+    out = run_folder("linear_baselines", json_path=args.json)  # created and checked before the fits
     if args.synthetic:
         ds, source = synthetic_scr_dataset(seed=args.seed), "synthetic surrogate (ident.plant_data)"
     else:
@@ -106,7 +107,6 @@ def main(argv: list[str] | None = None) -> int:
         ptxt = f"{pub['fit_estimation']:.2f} / {pub['fit_validation']:.2f} %" if pub else ""
         print(f"{r['model']:8s} {r['n_params']:6d} {r['fit_estimation']:7.2f}% {r['fit_validation']:7.2f}% "
               f"{r['mse_estimation']:8.3f} {r['mse_validation']:8.3f}  {ptxt}")
-    out = run_folder("linear_baselines")
     write_json(out / "results.json", result)
     if args.json:
         write_json(args.json, result)

@@ -6,9 +6,10 @@ cycle and ``summary.json`` (min / mean / max of each signal and the positive wor
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
+from control.plots import pyplot
+from experiments._runs import save_figure, write_json
 from scr_env.cycles import ExhaustTrace, load_cycle, random_cycle
 
 _SIGNALS = (
@@ -32,22 +33,17 @@ def summarise(trace: ExhaustTrace) -> dict[str, float]:
 
 def plot(trace: ExhaustTrace, title: str, path: Path) -> None:
     """One figure with the engine power and the four SCR-inlet signals against time."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:  # pragma: no cover - matplotlib is a core dependency
-        raise ImportError("plot_cycles needs matplotlib (pip install matplotlib)") from exc
+    plt = pyplot()
     fig, axes = plt.subplots(len(_SIGNALS), 1, figsize=(10, 9), sharex=True)
-    for ax, (name, label) in zip(axes, _SIGNALS):
+    for ax, (name, label) in zip(axes, _SIGNALS, strict=True):
         ax.plot(trace.time_s, getattr(trace, name), lw=0.8)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("time [s]")
     axes[0].set_title(f"{title}: positive work {trace.positive_work_kwh:.1f} kWh")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with save_figure(path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
 
 
@@ -68,7 +64,7 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:
     for key, trace in traces.items():
         plot(trace, key, args.out / f"{key}.png")
         summary[key] = summarise(trace)
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_json(args.out / "summary.json", summary)
     for key, s in summary.items():
         print(f"{key:>14}: flow {s['exhaust_flow_mol_s_min']:.2f}-{s['exhaust_flow_mol_s_max']:.2f} mol/s, "
               f"T {s['scr_inlet_temperature_k_min']:.0f}-{s['scr_inlet_temperature_k_max']:.0f} K, "

@@ -21,10 +21,11 @@ import argparse
 from collections.abc import Sequence
 
 import numpy as np
-from numba import njit
 
-from experiments._runs import run_folder, write_json
+from control.plots import pyplot
+from experiments._runs import run_folder, save_figure, write_json
 from ident.rpem import PAPER2_TERMS, RecursivePEM
+from scr_env.jit import njit
 
 THETA_TRUE = np.array([0.0, 2.0, -1.0, 0.0, -1.0, -1.0, 0.0, 0.0])
 THETA_START = np.array([0.0, 0.5, -0.5, 0.0, -0.25, 0.0, 0.0, 0.0])
@@ -109,10 +110,7 @@ def run_recursively(est: RecursivePEM, u: np.ndarray, y: np.ndarray, chunk: int 
 
 
 def plot_convergence(history: np.ndarray, chunk: int, path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     t = np.arange(len(history)) * chunk * T_SAMPLE_S
     fig, ax = plt.subplots(figsize=(8, 4.5))
@@ -124,7 +122,8 @@ def plot_convergence(history: np.ndarray, chunk: int, path) -> None:
     ax.set_title("RPEM parameter convergence, Paper II example (seed 0; dashed: true values)")
     ax.legend(fontsize=7, ncol=2, loc="lower right")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with save_figure(path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
 
 
@@ -133,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     ap.add_argument("--seeds", type=int, default=10, help="number of seeds (0 .. seeds-1)")
     ap.add_argument("--json", type=str, default=None, help="write the figures to this JSON file")
     args = ap.parse_args(argv)
-    out = run_folder("rpem_paper2_example")
+    out = run_folder("rpem_paper2_example", json_path=args.json)
     chunk = 50
 
     errors, theta_final, rejected = [], None, []
@@ -151,9 +150,9 @@ def main(argv: Sequence[str] | None = None) -> dict:
     cont: dict[str, list[float]] = {"midpoint": [], "euler": []}
     for seed in range(args.seeds):
         u, y = make_data(seed, continuous=True)
-        for method in cont:
+        for method, errs in cont.items():
             est = estimator(alpha=1.0, method=method).fit(u, y)
-            cont[method].append(float(np.max(np.abs(est.theta_ - THETA_TRUE))))
+            errs.append(float(np.max(np.abs(est.theta_ - THETA_TRUE))))
 
     result = {
         "protocol": "scaled midpoint data, T = 0.1 s, alpha = 1.5 in data and estimator, 10000 samples, one pass; "

@@ -48,11 +48,12 @@ def run_sweep(fn: Callable[..., Any], tasks: Sequence[dict[str, Any]], backend: 
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if not callable(fn):
-        raise ValueError("fn must be callable")
+        raise ValueError("fn must be callable")  # noqa: TRY004  (ValueError naming the argument, as every check)
     tasks = list(tasks)
     for i, t in enumerate(tasks):
         if not isinstance(t, dict):
-            raise ValueError(f"tasks[{i}] must be a dict of keyword arguments, got {type(t).__name__}")
+            raise ValueError(  # noqa: TRY004  (ValueError naming the argument, as every check)
+                f"tasks[{i}] must be a dict of keyword arguments, got {type(t).__name__}")
     if not tasks:
         return []
     if workers is not None and (not isinstance(workers, int) or workers < 1):

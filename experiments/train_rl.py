@@ -16,78 +16,40 @@ Long training drifts towards storing NH3 at mid temperatures (more conversion no
 validation catches that, the training return does not. ``--select-from RUN_FOLDER`` redoes the selection and the
 evaluation of a finished run. The evaluation uses :func:`control.evaluation.evaluate` on the WHTC and WHSC
 (hot start, sensor noise, seeds ``--eval-seeds``) for the policy, the look-up-table baseline
-(:class:`control.baselines.LookupTableDosing`) and flat feedforward at ANR 0.9 and 1.0; ``--json`` gets the KPIs and the wall
-time. With ``--surrogate`` the agent trains on an identified model (:mod:`control.rl.surrogate`) and the JSON
-also reports its KPIs on the surrogate versus the first-principles plant (the sim-to-real gap).
+(:class:`control.baselines.LookupTableDosing`) and flat feedforward at ANR 0.9 and 1.0
+(:func:`control.rl.selection.reference_policies`); ``--json`` gets the KPIs and the wall time. With
+``--surrogate`` the agent trains on an identified model (:mod:`control.rl.surrogate`) and the JSON also reports
+its KPIs on the surrogate versus the first-principles plant (the sim-to-real gap).
 """
 from __future__ import annotations
 
 import argparse
 import json
 import shlex
-import shutil
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from control.rl.selection import (
+    VALIDATION_DURATION_S,
+    VALIDATION_SEEDS,
+    VALIDATION_SLIP_LIMIT_PPM,
+    candidates_in,
+    evaluate_policies,
+    install,
+    reference_policies,
+    select,
+    validate,
+)
 from experiments._runs import run_folder, write_json
+from scr_env.fileio import check_output_file
 
 #: reward weights of training [chosen, see control/policies/README.md]: a gram of tailpipe NOx costs 40 g of AdBlue
 #: (twice the env default: dosing pays more), a gram of NH3 slip 150 g (3.75 times NOx per gram, 1.4 times per mol).
 #: With equal weights (40, 40) PPO learned to store NH3 at mid temperatures and slipped 19-182 ppm on the WHTC's
 #: hot part; the slip weight is the Lagrange multiplier of the 10 ppm mean-slip limit, set with margin.
 TRAIN_REWARD_WEIGHTS = {"nox": 40.0, "nh3": 150.0, "adblue": 1.0}
-
-
-#: checkpoint selection (validation, never the held-out WHTC/WHSC): hot-start random cycles of this length, seeds
-VALIDATION_DURATION_S = 3600.0
-VALIDATION_SEEDS = (1001, 1002, 1003, 1004)
-VALIDATION_SLIP_LIMIT_PPM = 10.0
-
-
-class FeedforwardANR:
-    """Flat feedforward dosing: AdBlue = ANR * upstream NOx * flow / NH3 per g AdBlue (a reference, no map)."""
-
-    def __init__(self, anr: float = 0.9, max_rate_g_s: float = 3.0) -> None:
-        self.anr = anr
-        self.max_rate_g_s = max_rate_g_s
-
-    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        from scr_env.constants import NH3_MOL_PER_G_ADBLUE
-
-        obs = np.asarray(observation, dtype=np.float64)
-        rate = self.anr * max(obs[0], 0.0) * 1e-6 * max(obs[2], 0.0) / NH3_MOL_PER_G_ADBLUE
-        rate = min(max(rate, 0.0), self.max_rate_g_s)
-        return np.array([2.0 * rate / self.max_rate_g_s - 1.0], dtype=np.float32), state
-
-
-def reference_policies() -> dict[str, Any]:
-    """The baselines the RL policies are compared with: the look-up table (if control.baselines exists) and flat
-    feed-forward at ANR 0.9 and 1.0."""
-    refs: dict[str, Any] = {}
-    try:
-        from control.baselines import LookupTableDosing
-
-        refs["lookup_table"] = LookupTableDosing()
-    except ImportError:
-        pass
-    refs["feedforward_anr_0.9"] = FeedforwardANR(0.9)
-    refs["feedforward_anr_1.0"] = FeedforwardANR(1.0)  # where an "anr"-action policy starts (action 0)
-    return refs
-
-
-def evaluate_policies(policies: dict[str, Any], cycles: tuple[str, ...], seeds: tuple[int, ...]) -> dict:
-    """``{cycle: {name: {kpi: mean over seeds}}}`` via control.evaluation."""
-    from control.evaluation import evaluate, summarise
-
-    results = []
-    for name, policy in policies.items():
-        results += evaluate(policy, cycles=cycles, seeds=seeds, name=name)
-    return summarise(results), results
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -125,56 +87,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def validate(candidates: list[Path], seeds: tuple[int, ...] = VALIDATION_SEEDS) -> list[dict[str, Any]]:
-    """KPIs of each candidate policy on the validation cycles (long random cycles, never the WHTC/WHSC)."""
-    from control.evaluation import evaluate
-    from control.rl.policy import load_policy
-
-    rows = []
-    for path in candidates:
-        res = evaluate(load_policy(path), cycles=("random",), seeds=seeds,
-                       env_kwargs={"random_cycle_duration_s": VALIDATION_DURATION_S}, name=path.stem)
-        tp = [r.kpis["tailpipe_nox_g_per_kwh"] for r in res]
-        slip = [r.kpis["mean_nh3_slip_ppm"] for r in res]
-        rows.append({"candidate": str(path), "timesteps": int(json.loads(path.read_text()).get("timesteps", 0)),
-                     "tailpipe_nox_g_per_kwh_mean": float(np.mean(tp)), "mean_nh3_slip_ppm_max": float(np.max(slip)),
-                     "tailpipe_nox_g_per_kwh": tp, "mean_nh3_slip_ppm": slip})
-        print(f"validation {path.stem:16s} tailpipe {np.mean(tp):.3f} g/kWh  worst mean slip {np.max(slip):.1f} ppm",
-              flush=True)
-    return rows
-
-
-def select(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """The rule: lowest mean validation tailpipe NOx among candidates whose worst validation mean slip is at most
-    :data:`VALIDATION_SLIP_LIMIT_PPM`; if none is, the one with the lowest worst slip."""
-    ok = [r for r in rows if r["mean_nh3_slip_ppm_max"] <= VALIDATION_SLIP_LIMIT_PPM]
-    if ok:
-        return min(ok, key=lambda r: r["tailpipe_nox_g_per_kwh_mean"])
-    return min(rows, key=lambda r: r["mean_nh3_slip_ppm_max"])
-
-
-def candidates_in(folder: Path) -> list[Path]:
-    """Checkpoints (``checkpoints/*.json``) and the final policy (``policy/*.json``) of a run folder."""
-    found = sorted((folder / "checkpoints").glob("*.json"), key=lambda p: int(json.loads(p.read_text())["timesteps"]))
-    return found + sorted((folder / "policy").glob("*.json"))[:1]
-
-
-def install(src_json: Path, folder: Path, name: str, extra: dict[str, Any]) -> Path:
-    """Copy a saved policy (zip, NPZ, JSON) under the name ``name`` into ``folder``, metadata updated by ``extra``."""
-    meta = json.loads(src_json.read_text())
-    folder.mkdir(parents=True, exist_ok=True)
-    src = src_json.parent
-    if src.resolve() != folder.resolve() or meta["files"]["model"] != f"{name}.zip":
-        shutil.copy2(src / meta["files"]["model"], folder / f"{name}.zip")
-        shutil.copy2(src / meta["files"]["normalizer"], folder / f"{name}_vecnormalize.npz")
-    meta.update(extra)
-    meta["name"] = name
-    meta["files"] = {"model": f"{name}.zip", "normalizer": f"{name}_vecnormalize.npz"}
-    out = folder / f"{name}.json"
-    out.write_text(json.dumps(meta, indent=2, default=str), encoding="utf-8")
-    return out
-
-
 def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     from control.rl.pipeline import PipelineConfig
@@ -182,6 +94,8 @@ def main(argv: list[str] | None = None) -> dict:
     from control.rl.training import train
 
     name = args.name or args.algo
+    if args.json:
+        check_output_file(args.json, "--json file")
     command = "python -m experiments.train_rl " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     surrogate_info: dict[str, Any] = {}
     if args.select_from is not None:
@@ -192,11 +106,11 @@ def main(argv: list[str] | None = None) -> dict:
     else:
         if args.timesteps < 1:
             raise SystemExit("--timesteps N is needed to train (or --select-from RUN_FOLDER)")
-        out = args.out or run_folder(f"train_rl/{args.algo}")
+        out = args.out or run_folder(f"train_rl/{args.algo}", json_path=args.json)
         out.mkdir(parents=True, exist_ok=True)
         weights = None if args.default_reward else dict(TRAIN_REWARD_WEIGHTS)
         if args.reward_weights is not None:
-            weights = dict(zip(("nox", "nh3", "adblue"), args.reward_weights))
+            weights = dict(zip(("nox", "nh3", "adblue"), args.reward_weights, strict=True))
         env_kwargs = {} if weights is None else {"reward_weights": weights}
         pipeline = PipelineConfig(n_stack=args.n_stack, use_tailpipe_sensor=args.use_sensor, action=args.action,
                                   long_surplus_time_constant_s=args.long_surplus_s)
@@ -261,7 +175,7 @@ def main(argv: list[str] | None = None) -> dict:
                                                                             "peak_nh3_slip_ppm", "adblue_g")}
                                   for k in summary[c]} for c in cycles}
     meta_all["evaluation_seeds"] = list(seeds)
-    json_path.write_text(json.dumps(meta_all, indent=2, default=str))
+    write_json(json_path, meta_all)
     if args.ship:
         report["shipped"] = str(install(json_path, POLICY_DIR, name, {}))
     write_json(out / "report.json", report)

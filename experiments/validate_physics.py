@@ -1,190 +1,170 @@
 """The simulator in the CLEERS lab configuration against the real Cu-SSZ-13 measurements (PHYSICS.md section 6).
 
-Usage: ``python -m experiments.validate_physics [--json PATH] [--preset cu_zeolite]``.
+Usage: ``python -m experiments.validate_physics [--json PATH] [--preset cu_zeolite] [--no-transients]``.
 
-Prints one row per validation point (case, temperature [C], quantity, measured, simulated, tolerance, ok), writes
-``validation.json`` (``{"points": [{"case", "temperature_c", "quantity", "measured", "simulated", "tolerance",
-"within_tolerance"}, ...]}``; also to ``--json PATH`` if given) and ``validation.png`` (conversion, NH3 slip,
-NH3-oxidation outlet and storage against temperature: measured markers, simulated curves) to
-``runs/validate_physics/<YYYYmmdd-HHMMSS>/``. Deterministic (no random numbers).
-
-Points and tolerances (PHYSICS.md 6): standard SCR NOx conversion within 0.05 and NH3 slip within 25 ppm at the
-five plateaus; fast SCR (NO:NO2 = 1:1) conversion within 0.07; steady NH3 outlet of the NH3-only oxidation
-segments within 30 ppm at 400, 500, 550 C (the last segment at each temperature is the steady one); equilibrium
-storage at 300 ppm NH3 within 20 % of the isotherm file from 150 to 450 C every 50 C.
+Points (:mod:`scr_env.lab_validation`): the earlier unaged data (low-temperature sweep, NH3-oxidation steps,
+isotherms) and every plateau of the five-age file (standard SCR conversion, N2O and NH3 slip, NH3 oxidation, the
+NH3 storage step in 0.2 % O2, NO oxidation), each with ``age_h`` and its tolerance (None where PHYSICS.md gives
+none); RMS errors per kind, temperature and age; and the transient records of all 35 runs replayed through
+``scr_env.lab.run_protocol`` with RMS errors [ppm] per species and segment kind. Prints the tables and writes, to
+``runs/validate_physics/<YYYYmmdd-HHMMSS>/``: ``validation.json`` (also ``--json``), ``validation.png`` (the
+earlier unaged data), ``validation_ages.png`` (five ages against temperature) and ``validation_transients.png``
+(standard-SCR and NH3 storage/oxidation steps at 250 and 450 C, unaged and 16 h, measured and simulated).
+Deterministic (no random numbers).
 """
 from __future__ import annotations
 
 import argparse
-import csv
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_figure, save_results
+from scr_env import catalyst_data as cd
 from scr_env.lab import steady_state
+from scr_env.lab_validation import SPECIES, lab_points, plateau_points, rms_summary, transient_replays
 
-_CURVE_T_C = np.arange(140.0, 601.0, 5.0)  # C, simulated curves
-
-
-def _rows(name: str) -> list[dict[str, str]]:
-    text = resources.files("scr_env").joinpath("data", "catalyst", name).read_text(encoding="utf-8")
-    return list(csv.DictReader(line for line in text.splitlines() if not line.startswith("#")))
+_T = np.arange(140.0, 601.0, 10.0)  # C, simulated curves
+_SHOWN_RUNS = ((250.0, 0.0), (250.0, 16.0), (450.0, 0.0), (450.0, 16.0))  # transient figure
 
 
-def _point(case: str, t_c: float, quantity: str, measured: float, simulated: float, tolerance: float,
-           relative: bool = False) -> dict:
-    error = abs(simulated - measured) / (abs(measured) if relative else 1.0)
-    return {"case": case, "temperature_c": t_c, "quantity": quantity, "measured": measured,
-            "simulated": float(simulated), "tolerance": tolerance, "tolerance_kind": "relative" if relative else
-            "absolute", "error": float(error), "within_tolerance": bool(error <= tolerance)}
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
-def validation_points(preset: str = "cu_zeolite") -> list[dict]:
-    """Every point of PHYSICS.md section 6 with its measurement, simulation and tolerance."""
-    points = []
-    for r in _rows("cleers_cu_ssz13_lowT_sweep.csv"):
-        t_c, nox, nh3 = float(r["T_mid_C"]), float(r["NOx_in_ppm"]), float(r["NH3_in_ppm"])
-        if r["case"] == "NOSCR":
-            s = steady_state(preset, t_c, no_ppm=nox, nh3_ppm=nh3)
-            points.append(_point("standard_scr", t_c, "nox_conversion", float(r["NOx_conversion"]),
-                                 s["nox_conversion"], 0.05))
-            points.append(_point("standard_scr", t_c, "nh3_out_ppm", float(r["NH3_out_ppm"]), s["nh3_out_ppm"], 25.0))
-        elif r["case"] == "FastSCR":
-            s = steady_state(preset, t_c, no_ppm=nox / 2, no2_ppm=nox / 2, nh3_ppm=nh3)
-            points.append(_point("fast_scr", t_c, "nox_conversion", float(r["NOx_conversion"]),
-                                 s["nox_conversion"], 0.07))
-    last = {float(r["T_C"]): r for r in _rows("cleers_cu_ssz13_nh3_oxidation_steps.csv")}  # last segment per T
-    for t_c in (400.0, 500.0, 550.0):
-        s = steady_state(preset, t_c, nh3_ppm=float(last[t_c]["NH3_in_ppm"]))
-        points.append(_point("nh3_oxidation", t_c, "nh3_out_ppm", float(last[t_c]["NH3_out_ppm"]), s["nh3_out_ppm"],
-                             30.0))
-    for r in _rows("cu_ssz13_nh3_storage_isotherms.csv"):
-        t_c = float(r["T_C"])
-        if float(r["NH3_ppm"]) == 300.0 and 150.0 <= t_c <= 450.0 and t_c % 50.0 == 0.0:
-            s = steady_state(preset, t_c, nh3_ppm=300.0)
-            points.append(_point("storage_300ppm", t_c, "nh3_stored_mol_per_m3", float(r["q_total_molL"]) * 1000.0,
-                                 s["nh3_stored_mol_per_m3"], 0.20, relative=True))
-    return points
-
-
-def _curves(preset: str) -> dict[str, np.ndarray]:
-    """Simulated lab curves over 140-600 C at the CLEERS feed (300 ppm NOx, ANR 1, 10 % O2)."""
-    std = [steady_state(preset, t, no_ppm=300.0, nh3_ppm=300.0) for t in _CURVE_T_C]
-    fast = [steady_state(preset, t, no_ppm=150.0, no2_ppm=150.0, nh3_ppm=300.0) for t in _CURVE_T_C]
-    ox = [steady_state(preset, t, nh3_ppm=300.0) for t in _CURVE_T_C]
-    out = {"t_c": _CURVE_T_C,
-           "std_conversion": np.array([s["nox_conversion"] for s in std]),
-           "std_slip": np.array([s["nh3_out_ppm"] for s in std]),
-           "std_n2o": np.array([s["n2o_out_ppm"] for s in std]),
-           "fast_conversion": np.array([s["nox_conversion"] for s in fast]),
-           "ox_nh3_out": np.array([s["nh3_out_ppm"] for s in ox]),
-           "ox_nox_out": np.array([s["nox_out_ppm"] for s in ox])}
-    for ppm in (100.0, 300.0, 1000.0):
-        out[f"storage_{ppm:.0f}"] = np.array([steady_state(preset, t, nh3_ppm=ppm)["nh3_stored_mol_per_m3"]
-                                              for t in _CURVE_T_C])
-    return out
-
-
-def plot(preset: str, path: Path) -> None:
-    """Four panels against temperature: NOx conversion, NH3 slip (standard SCR), NH3 oxidation, NH3 storage."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:  # pragma: no cover - matplotlib is a core dependency
-        raise ImportError("validate_physics needs matplotlib (pip install matplotlib)") from exc
-    c = _curves(preset)
-    t = c["t_c"]
-    sweep = _rows("cleers_cu_ssz13_lowT_sweep.csv")
-    std = [r for r in sweep if r["case"] == "NOSCR"]
-    fast = [r for r in sweep if r["case"] == "FastSCR"]
-    ox = _rows("cleers_cu_ssz13_nh3_oxidation_steps.csv")
-    last = {float(r["T_C"]): r for r in ox}
-    iso = _rows("cu_ssz13_nh3_storage_isotherms.csv")
-
-    def col(rows: list[dict[str, str]], key: str) -> np.ndarray:
-        return np.array([float(r[key]) for r in rows])
-
+def plot_lab(preset: str, points: list[dict], path: Path) -> None:
+    """The earlier unaged data: conversion (standard, fast SCR), slip, NH3 oxidation, storage against temperature."""
+    plt = _plt()
+    sim = {f: [steady_state(preset, t, **kw) for t in _T] for f, kw in (
+        ("std", {"no_ppm": 300.0, "nh3_ppm": 300.0}), ("fast", {"no_ppm": 150.0, "no2_ppm": 150.0, "nh3_ppm": 300.0}),
+        ("no2", {"no2_ppm": 300.0, "nh3_ppm": 300.0}), ("ox", {"nh3_ppm": 300.0}))}
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.5))
+
+    def meas(case: str, quantity: str) -> tuple[list, list]:
+        sel = [p for p in points if p["case"] == case and p["quantity"] == quantity and p["age_h"] == 0.0]
+        return [p["temperature_c"] for p in sel], [p["measured"] for p in sel]
+
     ax = axes[0, 0]
-    ax.plot(t, c["std_conversion"], "C0-", label="standard SCR, simulated")
-    ax.plot(col(std, "T_mid_C"), col(std, "NOx_conversion"), "C0o", ms=7, label="standard SCR, measured")
-    ax.plot(t, c["fast_conversion"], "C1-", label="fast SCR (NO:NO2 1:1), simulated")
-    ax.plot(col(fast, "T_mid_C"), col(fast, "NOx_conversion"), "C1s", ms=7, label="fast SCR, measured")
-    ax.set(ylabel="NOx conversion [-]", ylim=(0, 1.02), title="NOx conversion, 300 ppm NOx, ANR 1, GHSV 60000 1/h")
-    ax.legend(loc="lower right", fontsize=8)
-
+    for key, col, lab in (("std", "C0", "standard SCR"), ("fast", "C1", "fast SCR (NO:NO2 1:1)"),
+                          ("no2", "C2", "NO2-SCR (prediction, no data)")):
+        ax.plot(_T, [s["nox_conversion"] for s in sim[key]], "-", color=col, label=f"{lab}, simulated")
+    ax.plot(*meas("standard_scr", "nox_conversion"), "C0o", label="standard SCR, measured")
+    ax.plot(*meas("fast_scr", "nox_conversion"), "C1s", label="fast SCR, measured")
+    ax.set(ylabel="NOx conversion [-]", ylim=(0, 1.02), title="300 ppm NOx, ANR 1, 10 % O2, unaged")
     ax = axes[0, 1]
-    ax.plot(t, c["std_slip"], "C0-", label="NH3 slip, simulated")
-    ax.plot(col(std, "T_mid_C"), col(std, "NH3_out_ppm"), "C0o", ms=7, label="NH3 slip, measured (+/- 25 ppm)")
-    ax.errorbar(col(std, "T_mid_C"), col(std, "NH3_out_ppm"), yerr=25.0, fmt="none", ecolor="C0", alpha=0.5)
-    ax.plot(t, c["std_n2o"], "C2-", label="N2O, simulated")
-    ax.plot(col(std, "T_mid_C"), col(std, "N2O_out_ppm"), "C2^", ms=7, label="N2O, measured")
-    ax.set(ylabel="outlet [ppm]", ylim=(0, 300), title="Standard SCR: NH3 slip and N2O")
-    ax.legend(loc="upper right", fontsize=8)
-
+    ax.plot(_T, [s["nh3_out_ppm"] for s in sim["std"]], "C0-", label="NH3 slip, simulated")
+    ax.plot(*meas("standard_scr", "nh3_out_ppm"), "C0o", label="NH3 slip, measured")
+    for key, col in (("std", "C0"), ("fast", "C1"), ("no2", "C2")):
+        ax.plot(_T, [s["n2o_out_ppm"] for s in sim[key]], "--", color=col, label=f"N2O ({key}), simulated")
+    ax.set(ylabel="outlet [ppm]", ylim=(0, 300), title="Slip and N2O")
     ax = axes[1, 0]
-    ax.plot(t, c["ox_nh3_out"], "C3-", label="NH3 out, simulated")
-    ax.plot(col(ox, "T_C"), col(ox, "NH3_out_ppm"), "o", mfc="none", mec="C3", alpha=0.6,
-            label="NH3 out, all segments\n(early ones still filling)")
-    lt = np.array(sorted(last))
-    ax.plot(lt, [float(last[v]["NH3_out_ppm"]) for v in lt], "C3o", ms=7, label="NH3 out, last segment")
-    ax.plot(t, c["ox_nox_out"], "C4-", label="NOx out, simulated")
-    ax.plot(lt, [float(last[v]["NOx_out_ppm"]) for v in lt], "C4s", ms=7, label="NOx out, last segment")
-    ax.set(xlabel="temperature [C]", ylabel="outlet [ppm]", ylim=(0, 320),
-           title="NH3 oxidation, 300 ppm NH3, no NOx")
-    ax.legend(loc="upper right", fontsize=8)
-
+    ax.plot(_T, [s["nh3_out_ppm"] for s in sim["ox"]], "C3-", label="NH3 out, simulated")
+    ax.plot(_T, [s["nox_out_ppm"] for s in sim["ox"]], "C4-", label="NOx out, simulated")
+    ax.plot(*meas("nh3_oxidation", "nh3_out_ppm"), "C3o", label="NH3 out, measured")
+    ax.set(xlabel="temperature [C]", ylabel="outlet [ppm]", title="NH3 oxidation, 300 ppm NH3")
     ax = axes[1, 1]
-    for ppm, color in ((100.0, "C5"), (300.0, "C0"), (1000.0, "C1")):
-        rows = [r for r in iso if float(r["NH3_ppm"]) == ppm]
-        ax.plot(t, c[f"storage_{ppm:.0f}"], "-", color=color, label=f"{ppm:.0f} ppm, simulated")
-        ax.plot(col(rows, "T_C"), col(rows, "q_total_molL") * 1000.0, "o", color=color, ms=5,
-                label=f"{ppm:.0f} ppm, isotherm file")
-    ax.set(xlabel="temperature [C]", ylabel="NH3 stored [mol / m3 catalyst]", ylim=(0, None),
-           title="Equilibrium NH3 storage (isotherm: derived, not measured)")
-    ax.legend(loc="upper right", fontsize=8, ncol=2)
-
+    ax.plot(_T, [steady_state(preset, t, nh3_ppm=300.0)["nh3_stored_mol_per_m3"] for t in _T], "C0-",
+            label="simulated")
+    ax.plot(*meas("storage_300ppm", "nh3_stored_mol_per_m3"), "C0o", label="isotherm file (derived)")
+    ax.set(xlabel="temperature [C]", ylabel="NH3 stored [mol/m3]", title="Equilibrium storage, 300 ppm NH3")
     for a in axes.flat:
-        a.set_xlim(140, 600)
-        a.grid(alpha=0.3)
-    fig.suptitle(f"Catalyst '{preset}' in the CLEERS lab configuration vs the Cu-SSZ-13 data", fontsize=12)
+        a.grid(alpha=0.3), a.legend(fontsize=7), a.set_xlim(140, 600)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with save_figure(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
 
-def _table(points: list[dict]) -> str:
-    head = f"{'case':15s} {'T [C]':>6s} {'quantity':22s} {'measured':>9s} {'simulated':>9s} {'tolerance':>10s}  ok"
-    lines = [head, "-" * len(head)]
-    for p in points:
-        tol = f"{p['tolerance'] * 100:.0f} %" if p["tolerance_kind"] == "relative" else f"{p['tolerance']:g}"
-        lines.append(f"{p['case']:15s} {p['temperature_c']:6.1f} {p['quantity']:22s} {p['measured']:9.4g} "
-                     f"{p['simulated']:9.4g} {tol:>10s}  {'yes' if p['within_tolerance'] else 'NO'}")
-    return "\n".join(lines)
+def plot_ages(preset: str, points: list[dict], path: Path) -> None:
+    """Five ages against temperature: standard-SCR conversion and N2O, NH3-oxidation outlet, NO2 from NO."""
+    plt = _plt()
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8.5))
+    panels = (("standard_scr", "nox_conversion", "standard SCR NOx conversion [-]", {"no_ppm": 297.0,
+                                                                                     "nh3_ppm": 299.0}),
+              ("standard_scr", "n2o_out_ppm", "standard SCR N2O [ppm]", {"no_ppm": 297.0, "nh3_ppm": 299.0}),
+              ("nh3_oxidation", "nh3_out_fraction", "NH3 oxidation: NH3 out / in [-]", {"nh3_ppm": 299.0}),
+              ("no_only", "no2_out_ppm", "NO oxidation: NO2 out [ppm]", {"no_ppm": 297.0}))
+    t_sim = np.arange(240.0, 561.0, 10.0)
+    for ax, (case, q, title, feed) in zip(axes.flat, panels, strict=True):
+        for i, age in enumerate(cd.AGES_H):
+            sel = [p for p in points if p["case"] == case and p["quantity"] == q and p["age_h"] == age
+                   and p.get("first_no_only", True)]
+            ax.plot([p["temperature_c"] for p in sel], [p["measured"] for p in sel], "o", color=f"C{i}")
+            sim = [steady_state(preset, t, age_h=age, **feed) for t in t_sim]
+            key = "nh3_out_ppm" if q == "nh3_out_fraction" else q
+            val = np.array([s[key] for s in sim]) / (feed["nh3_ppm"] if q == "nh3_out_fraction" else 1.0)
+            ax.plot(t_sim, val, "-", color=f"C{i}", label=f"{age:g} h")
+        ax.set(title=title, xlabel="temperature [C]")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(title="age (lines simulated,\nmarkers measured)", fontsize=8)
+    fig.suptitle(f"'{preset}' against the five-age CLEERS plateaus (Cu-SSZ-13, hydrothermal ageing)")
+    fig.tight_layout()
+    with save_figure(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def plot_transients(runs: list[dict], path: Path) -> None:
+    """Outlet NH3 and NOx over the kept record (NH3 storage, NH3 oxidation, NO only, standard SCR) of four runs."""
+    plt = _plt()
+    shown = [r for key in _SHOWN_RUNS for r in runs if (r["temperature_c"], r["age_h"]) == key]
+    fig, axes = plt.subplots(len(shown), 1, figsize=(12, 3.0 * len(shown)), squeeze=False)
+    for ax, r in zip(axes[:, 0], shown, strict=False):
+        t = r["time_min"]
+        ax.plot(t, r["inlet"]["NH3_in_ppm"], color="0.7", lw=1, label="NH3 in")
+        for sp, col in (("NH3", "C3"), ("NO", "C0"), ("NO2", "C2"), ("N2O", "C4")):
+            ax.plot(t, r["measured"][sp], ".", color=col, ms=2, label=f"{sp} measured")
+            ax.plot(t, r["simulated"][sp], "-", color=col, lw=1.2,
+                    label=f"{sp} simulated (RMS {r['rms_ppm']['all'][sp]:.1f} ppm)")
+        ax.set(ylabel="ppm", title=f"{r['temperature_c']:.0f} C, {r['age_h']:g} h: NH3 storage (0.2 % O2), "
+                                   "NH3 oxidation, NO only, standard SCR, NO only")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncol=5, loc="upper right")
+    axes[-1, 0].set_xlabel("time [min]")
+    fig.tight_layout()
+    with save_figure(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--json", type=Path, help="also write the points to this JSON file")
+    parser.add_argument("--json", type=Path, help="also write the results to this JSON file")
     parser.add_argument("--preset", default="cu_zeolite", help="catalyst preset (default cu_zeolite)")
+    parser.add_argument("--no-transients", action="store_true", help="skip the transient replays (faster)")
     args = parser.parse_args(argv)
+    folder = run_folder("validate_physics", json_path=args.json)  # created and checked before the work
 
-    points = validation_points(args.preset)
-    result = {"preset": args.preset, "points": points}
-    print(_table(points))
-    n_ok = sum(p["within_tolerance"] for p in points)
-    worst = max(p["error"] / p["tolerance"] for p in points)
-    print(f"{n_ok}/{len(points)} points within tolerance; worst error/tolerance {worst:.2f}")
-
-    folder = run_folder("validate_physics")
-    write_json(folder / "validation.json", result)
-    if args.json:
-        write_json(args.json, result)
-    plot(args.preset, folder / "validation.png")
+    points = lab_points(args.preset) + plateau_points(args.preset)
+    judged = [p for p in points if p["within_tolerance"] is not None]
+    for p in points:
+        flag = "-" if p["within_tolerance"] is None else ("yes" if p["within_tolerance"] else "NO")
+        print(f"{p['case']:15s} {p['temperature_c']:6.1f} C {p['age_h']:4g} h {p['quantity']:22s} "
+              f"meas {p['measured']:9.4g} sim {p['simulated']:9.4g}  {flag}")
+    n_ok = sum(p["within_tolerance"] for p in judged)
+    print(f"{n_ok}/{len(judged)} judged points within tolerance "
+          f"({sum(p['within_tolerance'] for p in judged if p['source'] == 'five_age_plateaus')}/"
+          f"{sum(1 for p in judged if p['source'] == 'five_age_plateaus')} of the five-age plateaus)")
+    rms = rms_summary(points)
+    for key, v in rms.items():
+        if key.count("/") == 1:
+            print(f"RMS {key:40s} {v['rms']:.4g} (n = {v['n']})")
+    result = {"preset": args.preset, "points": points, "rms": rms}
+    if not args.no_transients:
+        runs = transient_replays(args.preset)
+        for r in runs:
+            print(f"transient {r['temperature_c']:.0f} C {r['age_h']:4g} h: RMS [ppm] "
+                  + ", ".join(f"{sp} {r['rms_ppm']['all'][sp]:.1f}" for sp in SPECIES))
+        result["transients"] = [{k: r[k] for k in ("temperature_c", "age_h", "n_samples", "rms_ppm")} for r in runs]
+        plot_transients(runs, folder / "validation_transients.png")
+    save_results(folder, "validation.json", result, args.json)
+    plot_lab(args.preset, points, folder / "validation.png")
+    plot_ages(args.preset, points, folder / "validation_ages.png")
     print(f"run folder: {folder}")
     return result
 

@@ -25,7 +25,8 @@ from importlib import resources
 import numpy as np
 import scipy.io
 
-from experiments._runs import run_folder, write_json
+from control.plots import pyplot
+from experiments._runs import run_folder, save_figure, write_json
 from ident.metrics import fit_percent, rms
 from ident.rpem import PAPER2_TERMS, RecursivePEM
 
@@ -50,10 +51,7 @@ def estimator(method: str, passes: int) -> RecursivePEM:
 
 
 def plot(y_test: np.ndarray, y_sim: np.ndarray, path, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     t = (N_ESTIMATION + np.arange(len(y_test))) / FS_HZ
     fig, axes = plt.subplots(2, 1, figsize=(9, 6))
@@ -70,7 +68,8 @@ def plot(y_test: np.ndarray, y_sim: np.ndarray, path, title: str) -> None:
     axes[1].set_xlabel("time [s]")
     axes[1].set_ylabel("output [V] (first 1000 test samples)")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with save_figure(path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
 
 
@@ -79,7 +78,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     ap.add_argument("--passes", type=int, default=15, help="largest number of RPEM passes")
     ap.add_argument("--json", type=str, default=None, help="write the figures to this JSON file")
     args = ap.parse_args(argv)
-    out = run_folder("wh_benchmark")
+    out = run_folder("wh_benchmark", json_path=args.json)
     u, y = load_benchmark()
     ue, ye, ut, yt = u[:N_ESTIMATION], y[:N_ESTIMATION], u[N_ESTIMATION:], y[N_ESTIMATION:]
 

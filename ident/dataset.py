@@ -16,6 +16,7 @@ outputs in order; values are written with 17 significant digits so a round trip 
 """
 from __future__ import annotations
 
+import io
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -25,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ident.base import as_2d, check_same_length
+from ident.io import atomic_write_bytes
 
 _FORMAT = "ident.IODataset"
 _VERSION = 1
@@ -148,7 +150,8 @@ class IODataset:
 
     # ----------------------------------------------------------------------------------------- slicing
     def _replace(self, **changes: Any) -> IODataset:
-        kw = {"u": self.u, "y": self.y, "dt": self.dt, "input_names": self.input_names, "output_names": self.output_names,
+        kw = {"u": self.u, "y": self.y, "dt": self.dt, "input_names": self.input_names,
+              "output_names": self.output_names,
                   "input_units": self.input_units, "output_units": self.output_units, "t0": self.t0, "meta": self.meta}
         kw.update(changes)
         return IODataset(**kw)
@@ -236,10 +239,11 @@ class IODataset:
         path = Path(path)
         header = ",".join(("time_s",) + self.input_names + self.output_names)
         data = np.column_stack([self.time, self.u, self.y])
-        with path.open("w", encoding="utf-8") as fh:
-            fh.write("# " + json.dumps(self._meta_json()) + "\n")
-            fh.write(header + "\n")
-            np.savetxt(fh, data, delimiter=",", fmt="%.17g")
+        buf = io.StringIO()
+        buf.write("# " + json.dumps(self._meta_json()) + "\n")
+        buf.write(header + "\n")
+        np.savetxt(buf, data, delimiter=",", fmt="%.17g")
+        atomic_write_bytes(path, buf.getvalue().encode("utf-8"))  # a failed write leaves the old file
         return path
 
     @classmethod
@@ -269,8 +273,9 @@ class IODataset:
     def to_npz(self, path: str | Path) -> Path:
         """Write the data set as NPZ: arrays ``u``, ``y`` and the metadata as a JSON string (no pickled objects)."""
         path = Path(path)
-        with path.open("wb") as fh:
-            np.savez_compressed(fh, u=self.u, y=self.y, meta_json=np.array(json.dumps(self._meta_json())))
+        buf = io.BytesIO()
+        np.savez_compressed(buf, u=self.u, y=self.y, meta_json=np.array(json.dumps(self._meta_json())))
+        atomic_write_bytes(path, buf.getvalue())  # a failed write leaves the old file
         return path
 
     @classmethod

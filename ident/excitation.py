@@ -235,4 +235,4 @@ def generate_multichannel(signals: list[ExcitationSignal], n_samples: int, dt: f
     channels are.
     """
     children = np.random.SeedSequence(seed).spawn(len(signals))
-    return np.column_stack([s.generate(n_samples, dt, seed=c) for s, c in zip(signals, children)])
+    return np.column_stack([s.generate(n_samples, dt, seed=c) for s, c in zip(signals, children, strict=False)])

@@ -6,7 +6,8 @@ model instead [lit: Upadhyay and Van Nieuwstadt 2006; Schaer et al. 2006], with 
 simulation-error least squares (CasADi AD Jacobians, scipy ``least_squares``) from the signals of
 :mod:`ident.plant_data` data sets only: inputs [inlet NOx ppm, urea g/min, inlet T K, exhaust flow mol/s],
 outputs [tailpipe NOx ppm, NH3 ppm, NOx sensor ppm]. It satisfies :class:`ident.base.DynamicModel`
-(``predict``, ``to_casadi() -> Function('step', [x, u], [x_next, y])``); it lives in :mod:`ident` with the other identified models.
+(``predict``, ``to_casadi() -> Function('step', [x, u], [x_next, y])``); it lives in :mod:`ident` with the other
+identified models.
 
 Structure (n_cells CSTRs in series sharing one lumped solid temperature; gas quasi-steady):
 
@@ -40,18 +41,27 @@ write and read the fitted model in :mod:`ident.io`'s open format (kind ``"storag
 """
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import casadi as ca
 import numpy as np
 from scipy.optimize import least_squares
 
-from ident.base import as_2d, check_is_fitted, check_same_length
-from ident.io import load_model, register_model, save_model
+from ident.base import BaseEstimator, as_2d, check_is_fitted, check_same_length
+from ident.io import register_model
+from scr_env.constants import (
+    ATMOSPHERIC_PRESSURE_PA,
+    EXHAUST_HEAT_CAPACITY_J_KG_K,
+    EXHAUST_MOLAR_MASS_KG_MOL,
+    GAS_CONSTANT_J_MOL_K,
+    NH3_PER_UREA,
+    SECONDS_PER_MINUTE,
+    UREA_MOLAR_MASS_KG_MOL,
+)
 
-R_GAS = 8.314462618
-_CP_MOL = 0.0289 * 1250.0  # J/(mol K) exhaust
+R_GAS = GAS_CONSTANT_J_MOL_K  # J/(mol K)
+_CP_MOL = EXHAUST_MOLAR_MASS_KG_MOL * EXHAUST_HEAT_CAPACITY_J_KG_K  # J/(mol K) exhaust
+_UREA_G_MOL = UREA_MOLAR_MASS_KG_MOL * 1000.0  # g/mol (60.06)
 #: initial guess (textbook magnitudes for a Cu-zeolite brick of a 12 L engine; not the simulator's numbers)
 _NOMINAL = {"omega_mol": 8.0, "a_ads": 3.0e4, "a_des": 3.0e8, "e_des": 95e3, "gamma": 0.9, "a_scr": 2.0e8,
             "e_scr": 65e3, "a_ox": 1.0e6, "e_ox": 110e3, "heat_j_k": 5.0e4, "t50_k": 450.0}
@@ -60,6 +70,9 @@ N_PARAMS = 11
 N_INPUTS, N_OUTPUTS = 4, 3
 #: samples a fit needs in all: more than N_PARAMS, so that even the NOx residuals alone outnumber the parameters
 MIN_FIT_SAMPLES = N_PARAMS + 1
+#: most cells in series: the symbolic model grows with the cell count (a bound, so a damaged file or a typo such as
+#: n_cells=1e6 gets a clear error instead of building a graph for hours); the thesis-scale models use 1 to 5
+MAX_N_CELLS = 100
 _T_MIN_K = 200.0  # lower end of the temperatures the model is evaluated at (guards 1/T; far below any exhaust)
 
 
@@ -74,7 +87,7 @@ def _numeric(name: str, a: Any) -> np.ndarray:
 
 
 @register_model("storage_greybox")
-class StorageGreyBox:
+class StorageGreyBox(BaseEstimator):
     """Grey-box SCR storage model (module docstring), scikit-learn style.
 
     Parameters
@@ -105,14 +118,14 @@ class StorageGreyBox:
         t50 = nom["t50_k"] + 10.0 * p[9]
         e_ox = nom["e_ox"] * (1 + p[10])
         nox_ppm, urea_g_min, t_in, flow = u[0], u[1], u[2], ca.fmax(u[3], 1e-3)
-        c_tot = 101325.0 / (R_GAS * t)
+        c_tot = ATMOSPHERIC_PRESSURE_PA / (R_GAS * t)
         k_ads = nom["a_ads"] * ca.exp(p[1]) * c_tot
         k_des = nom["a_des"] * ca.exp(p[2]) * ca.exp(-e_des / (R_GAS * t))
         eg = gamma * e_des / (R_GAS * t)
         k_scr = nom["a_scr"] * ca.exp(p[5]) * ca.exp(-e_scr / (R_GAS * t))
         k_ox = nom["a_ox"] * ca.exp(p[7]) * ca.exp(-e_ox / (R_GAS * t))
         eta = 1.0 / (1.0 + ca.exp(-(t_in - t50) / 10.0))
-        y_nh3 = eta * ca.fmax(urea_g_min, 0) / 60.0 / 60.06 * 2.0 / flow
+        y_nh3 = eta * ca.fmax(urea_g_min, 0) / SECONDS_PER_MINUTE / _UREA_G_MOL * NH3_PER_UREA / flow
         y_nox = ca.fmax(nox_ppm, 0) * 1e-6
         q = flow * n / omega
 
@@ -150,6 +163,14 @@ class StorageGreyBox:
             _, y_nh3, y_nox = gas(th_new, y_nh3, y_nox)
         return ca.vertcat(*xs, t), ca.vertcat(y_nox * 1e6, y_nh3 * 1e6)
 
+    def step_expression(self, x: ca.SX, u: ca.SX, p: ca.SX) -> tuple[ca.SX, ca.SX]:
+        """The explicit step over ``dt`` (the one :meth:`to_casadi` exports) as CasADi expressions of the state
+        ``x`` (n_cells + 1), the inputs ``u`` (4) and the parameters ``p`` (N_PARAMS, symbolic or numeric):
+        ``(x_next, y)`` with y = [tailpipe NOx ppm, NH3 ppm]. Needs no fit: for models whose parameters are
+        re-estimated online (:mod:`control.adaptive`)."""
+        self._check_settings()
+        return self._step_expr(x, u, p)
+
     def implicit_stage(self, x_next: ca.SX, x: ca.SX, u: ca.SX, h: float) -> tuple[ca.SX, ca.SX]:
         """The model over a stage of ``h`` seconds (input held) as smooth implicit-Euler equations, for an NLP whose
         variables include the end state ``x_next``: ``(residual, y)``, residual zero when ``x_next`` is the
@@ -182,9 +203,17 @@ class StorageGreyBox:
 
     def _check_settings(self) -> None:
         n, dt = self.n_cells, self.dt
-        if isinstance(n, bool) or int(n) != n or n < 1:
-            raise ValueError(f"n_cells must be a positive integer, got {n!r}")
-        if not (np.isfinite(dt) and dt > 0):
+        try:
+            ok = not isinstance(n, bool) and int(n) == n and 1 <= n <= MAX_N_CELLS
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise ValueError(f"n_cells must be an integer from 1 to {MAX_N_CELLS} (cells in series), got {n!r}")
+        try:
+            ok = not isinstance(dt, bool) and np.isfinite(float(dt)) and float(dt) > 0
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
             raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
 
     @staticmethod
@@ -289,23 +318,10 @@ class StorageGreyBox:
 
     @classmethod
     def _from_state(cls, meta: dict, arrays: dict[str, np.ndarray]) -> StorageGreyBox:
-        m = cls.from_params(arrays["params"], arrays["sensor_gains"], n_cells=int(meta["n_cells"]),
-                            dt=float(meta["dt"]))
+        m = cls.from_params(arrays["params"], arrays["sensor_gains"], n_cells=meta["n_cells"], dt=meta["dt"])
         m.max_nfev, m.nh3_weight = int(meta.get("max_nfev", m.max_nfev)), float(meta.get("nh3_weight", m.nh3_weight))
         if "cost" in meta:
             m.cost_ = float(meta["cost"])
-        return m
-
-    def save(self, path: str | Path) -> Path:
-        """Write ``<path>.json`` + ``<path>.npz`` (:func:`ident.io.save_model`); return the JSON path."""
-        return save_model(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> StorageGreyBox:
-        """Read a model written by :meth:`save` (:func:`ident.io.load_model`; kind ``"storage_greybox"``)."""
-        m = load_model(path)
-        if not isinstance(m, cls):
-            raise TypeError(f"{path} holds a {type(m).__name__}, not a {cls.__name__}")
         return m
 
     def desorption_ppm(self, theta: ca.SX, t_k: ca.SX, flow_mol_s: float) -> ca.SX:
@@ -320,7 +336,7 @@ class StorageGreyBox:
         omega = nom["omega_mol"] * np.exp(p[0])
         e_des = nom["e_des"] * (1 + p[3])
         eg = nom["gamma"] * np.exp(p[4]) * e_des / (R_GAS * t_k)
-        k_ads = nom["a_ads"] * np.exp(p[1]) * 101325.0 / (R_GAS * t_k)
+        k_ads = nom["a_ads"] * np.exp(p[1]) * ATMOSPHERIC_PRESSURE_PA / (R_GAS * t_k)
         k_des = nom["a_des"] * np.exp(p[2]) * ca.exp(-e_des / (R_GAS * t_k))
         q = max(float(flow_mol_s), 1e-3) * n / omega
         return 1e6 * k_des * ca.exp(eg * theta) * theta / (q + k_ads * (1 - theta))

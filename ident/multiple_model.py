@@ -34,14 +34,13 @@ from __future__ import annotations
 import itertools
 import warnings
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from ident.base import as_2d, as_vector, check_is_fitted, check_same_length
-from ident.io import load_model, register_model, save_model
+from ident.base import BaseEstimator, as_2d, as_vector, check_is_fitted, check_same_length
+from ident.io import register_model
 from ident.linear._statespace import _per_input, data_columns, validate_fit_data
 
 #: Largest pole magnitude the OE refinement accepts for a local model (stable; at Ts = 0.5 s a time constant of
@@ -105,7 +104,7 @@ def validity_functions(s: Sequence[Any], edges: Sequence[np.ndarray], kind: str,
     the CasADi export is the numpy model).
     """
     per_dim = []
-    for sd, e in zip(s, edges):
+    for sd, e in zip(s, edges, strict=False):
         e = np.asarray(e, dtype=float)
         w = np.diff(e)
         if kind == "gaussian":
@@ -136,7 +135,7 @@ def _prod(items: Sequence[Any]) -> Any:
 
 
 @register_model("multiple_model")
-class MultipleModel:
+class MultipleModel(BaseEstimator):
     """Local affine ARX/OE models blended by validity functions of scheduling inputs.
 
     Parameters
@@ -181,12 +180,6 @@ class MultipleModel:
         self.max_nfev = max_nfev
 
     # ------------------------------------------------------------------------------------------ helpers
-    def get_params(self) -> dict[str, Any]:
-        return {"scheduling": [int(i) for i in self.scheduling],
-                "edges": [np.asarray(e, dtype=float).tolist() for e in self.edges], "local": self.local,
-                "na": self.na, "nb": self.nb, "nk": self.nk, "validity": self.validity, "width": self.width,
-                "ridge": self.ridge, "max_nfev": self.max_nfev}
-
     def _setup(self, nu: int) -> None:
         self._nb = _per_input(self.nb, nu, "nb")
         self._nk = _per_input(self.nk, nu, "nk")
@@ -434,15 +427,4 @@ class MultipleModel:
         obj._setup(int(meta["n_inputs"]))
         obj.n_inputs_ = int(meta["n_inputs"])
         obj.theta_ = arrays["theta_"]
-        return obj
-
-    def save(self, path: str | Path) -> Path:
-        """JSON + NPZ (see :mod:`ident.io`)."""
-        return save_model(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> MultipleModel:
-        obj = load_model(path)
-        if not isinstance(obj, cls):
-            raise TypeError(f"{path} holds a {type(obj).__name__}, not a MultipleModel")
         return obj

@@ -36,6 +36,7 @@ import numpy as np
 
 from ident.dataset import IODataset
 from ident.excitation import GBN, ExcitationSignal, RandomSteps
+from scr_env.constants import UREA_G_MIN_PER_ADBLUE_G_S  # g/min urea per g/s AdBlue (re-exported)
 
 #: Paper IV's protocol: 1200 samples at 0.5 s, first 900 for estimation.
 PAPER4_N_SAMPLES = 1200
@@ -96,8 +97,6 @@ SIM_INPUT_UNITS = ("ppm", "g/min", "K", "mol/s")
 SIM_OUTPUT_NAMES = ("tailpipe_nox_ppm", "nh3_slip_ppm", "nox_sensor_ppm")
 SIM_OUTPUT_UNITS = ("ppm", "ppm", "ppm")
 
-#: g/min of urea per g/s of AdBlue (AUS 32: 32.5 wt% urea).
-UREA_G_MIN_PER_ADBLUE_G_S = 60.0 * 0.325
 
 # surrogate (synthetic_scr_dataset) signal names and units
 INPUT_NAMES = ("inlet_nox_ppm", "urea_dosing_ml_h", "inlet_temperature_k", "exhaust_flow_kg_s")
@@ -105,11 +104,11 @@ INPUT_UNITS = ("ppm", "ml/h", "K", "kg/s")
 
 
 def feedforward_adblue_g_s(upstream_nox_ppm: float, exhaust_flow_mol_s: float, anr: float) -> float:
-    """The industrial feedforward: AdBlue [g/s] that releases ``anr`` mol NH3 per mol of upstream NOx."""
-    from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+    """The industrial feedforward: AdBlue [g/s] that releases ``anr`` mol NH3 per mol of upstream NOx
+    (:func:`control.baselines.feedforward_dose_g_s`, the project's one feedforward law)."""
+    from control.baselines import feedforward_dose_g_s
 
-    nox_mol_s = max(upstream_nox_ppm, 0.0) * 1e-6 * max(exhaust_flow_mol_s, 0.0)
-    return anr * nox_mol_s / NH3_MOL_PER_G_ADBLUE
+    return float(feedforward_dose_g_s(upstream_nox_ppm, exhaust_flow_mol_s, anr))
 
 
 def excitation_dataset(cycle: Any = "whtc", seed: int = 0, dt: float = 0.5, base_anr: float = 0.9,

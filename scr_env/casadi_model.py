@@ -1,9 +1,10 @@
 """The SCR catalyst in CasADi symbolic form, for model-based controllers (oracle MPC, estimators).
 
-The chemistry is not typed again here: it comes from :func:`scr_env.physics.backends.casadi_functions`, the same
-code objects (:mod:`scr_env.physics.cell`) that the numba plant kernel runs. This module only wires the cells in
-series and adds the linear thermal balance, exactly as :mod:`scr_env.physics.kernel` does;
-``tests/scr_env/test_casadi_model.py`` proves the two equal.
+No piece of the plant is typed again here: the chemistry (:mod:`scr_env.physics.cell`), the heat balance
+(:mod:`scr_env.physics.thermal`) and the dosing and inlet gas (:mod:`scr_env.physics.dosing`) come from
+:func:`scr_env.physics.backends.casadi_namespace`, the same code objects that the numba plant kernel runs. This
+module only wires the cells in series, as :mod:`scr_env.physics.kernel` does; ``tests/scr_env/test_casadi_model.py``
+proves the two equal.
 
 State and input (both column vectors):
 
@@ -38,15 +39,13 @@ from typing import Literal
 
 import casadi as ca
 
-from scr_env.constants import EXHAUST_HEAT_CAPACITY_J_KG_K, EXHAUST_MOLAR_MASS_KG_MOL, NH3_MOL_PER_G_ADBLUE
-from scr_env.params import CatalystParams, DosingParams, P, pack
-from scr_env.physics.backends import casadi_functions
-from scr_env.physics.kernel import _MIN_Q, INPUT_FIELDS
+from scr_env.params import KINETIC_SLICE, CatalystParams, DosingParams, P, pack
+from scr_env.physics.backends import casadi_functions, casadi_namespace
+from scr_env.physics.kernel import I_ADBLUE, I_FLOW, I_NO2F, I_NOX, I_TIN, INPUT_FIELDS
 
 OUTPUT_NAMES = ("tailpipe_no_ppm", "tailpipe_no2_ppm", "tailpipe_nh3_ppm", "tailpipe_n2o_ppm", "outlet_temperature_k")
 N_INPUTS = len(INPUT_FIELDS)
-_EXP_CP = EXHAUST_MOLAR_MASS_KG_MOL * EXHAUST_HEAT_CAPACITY_J_KG_K  # J/(mol K) of exhaust, as in the kernel
-_KINETIC = slice(P["a_ads"], P["o2_order_ox"] + 1)  # packed kinetic parameters, the arguments of rate_constants
+_KINETIC = KINETIC_SLICE  # packed kinetic parameters, the arguments of rate_constants
 _NEWTON_ABSTOL = 1e-14  # -, implicit-Euler residual of a cell relative to the N fed to it (the kernel stops at 1e-7
 # and ends on the conservative state, scr_env.physics.kernel._FLUX_TOL; the agreement test allows for that)
 _NEWTON_STEPTOL = 1e-16  # -, Newton step on the coverage (stops at the rounding floor)
@@ -65,26 +64,23 @@ class _Plant:
         self.n = params.n_cells
         self.dosing = dosing
         self.cell_balance, self.rate_constants, self.decomposition_efficiency = casadi_functions()
+        self.plant = casadi_namespace()  # the heat balance and dosing of scr_env.physics, on CasADi expressions
+        self.heat_capacity = self.p[P["heat_capacity_per_cell_j_k"]]
+        self.loss = self.p[P["ambient_loss_per_cell_w_k"]]
+        self.ambient = self.p[P["ambient_temperature_k"]]
 
-    # --- pieces, each a transcription of the corresponding lines of kernel._plant_step_one -------------------------
+    # --- the plant's one-source pieces, wired cell by cell as in kernel._plant_step_one ---------------------------
     def inlet(self, u: ca.SX | ca.MX) -> tuple:
-        """(q [1/s], y_nh3_in, y_no_in, y_no2_in [-]) at the catalyst face."""
-        p = self.p
-        flow, t_in, nox_ppm, no2_frac, adblue, _o2 = (u[i] for i in range(N_INPUTS))
-        adblue = ca.fmin(ca.fmax(adblue, 0.0), self.dosing.max_rate_g_s)
-        eta = self.decomposition_efficiency(t_in, self.dosing.decomposition_t50_k, self.dosing.decomposition_width_k)
-        nh3_mol_s = eta * adblue * NH3_MOL_PER_G_ADBLUE
-        sites = p[P["sites_per_cell_mol"]]
-        q = ca.fmax(flow / sites, _MIN_Q)
-        y_nh3_in = nh3_mol_s / ca.fmax(flow, _MIN_Q * sites)
-        nox = nox_ppm * 1e-6
-        return q, y_nh3_in, nox * (1.0 - no2_frac), nox * no2_frac
+        """(q [1/s], y_nh3_in, y_no_in, y_no2_in [-]) at the catalyst face (:func:`scr_env.physics.dosing.
+        inlet_conditions`)."""
+        d = self.dosing
+        return self.plant.inlet_conditions(u[I_FLOW], u[I_TIN], u[I_NOX], u[I_NO2F], u[I_ADBLUE], d.max_rate_g_s,
+                                           d.decomposition_t50_k, d.decomposition_width_k,
+                                           self.p[P["sites_per_cell_mol"]])[:4]
 
     def thermal(self, u: ca.SX | ca.MX) -> tuple:
         """(G [W/K], exp(-NTU) [-]): gas-solid coupling per cell and the gas temperature decay across a cell."""
-        mcp = u[0] * _EXP_CP
-        decay = ca.if_else(mcp > 0.0, ca.exp(-self.p[P["gas_solid_ua_per_cell_w_k"]] / ca.fmax(mcp, 1e-300)), 0.0)
-        return mcp * (1.0 - decay), decay
+        return self.plant.gas_solid_exchange(u[I_FLOW], self.p[P["gas_solid_ua_per_cell_w_k"]])
 
     def constants(self, temperature_k: ca.SX | ca.MX, o2: ca.SX | ca.MX) -> tuple:
         return self.rate_constants(temperature_k, o2, *self.p[_KINETIC])
@@ -98,43 +94,39 @@ class _Plant:
             r = self.cell_balance(theta[j], q, y_nh3, y_no, y_no2, *self.constants(temps[j], u[5]))
             g.append(r[0])
             y_nh3, y_no, y_no2 = r[2], r[3], r[4]
-            y_n2o = y_n2o + r[10] / q
+            y_n2o = y_n2o + r[5] / q  # N2O formed per site
         return g, [y_no, y_no2, y_nh3, y_n2o]
 
     def outputs(self, theta: list, temps: list, u: ca.SX | ca.MX) -> tuple[list, ca.SX | ca.MX]:
         """(g per cell, y) at the given states; y as in the module docstring."""
         g, gas = self.chemistry(theta, temps, u)
         _, decay = self.thermal(u)
-        t_gas = u[1]
+        t_gas = u[I_TIN]
         for j in range(self.n):
-            t_gas = temps[j] + (t_gas - temps[j]) * decay
+            t_gas = self.plant.gas_outlet_temperature(temps[j], t_gas, decay)
         return g, ca.vertcat(*[c * 1e6 for c in gas], t_gas)
 
     def temperature_rates(self, temps: list, u: ca.SX | ca.MX) -> list:
-        """dT/dt [K/s] per cell: C dT/dt = G (T_gas_in - T) - L (T - T_amb), gas in flow order."""
-        p = self.p
-        heat_cap, loss, t_amb = p[P["heat_capacity_per_cell_j_k"]], p[P["ambient_loss_per_cell_w_k"]], \
-            p[P["ambient_temperature_k"]]
+        """dT/dt [K/s] per cell (:func:`scr_env.physics.thermal.cell_temperature_rate`), gas in flow order."""
         coupling, decay = self.thermal(u)
-        t_gas = u[1]
+        t_gas = u[I_TIN]
         rates = []
         for j in range(self.n):
-            rates.append((coupling * (t_gas - temps[j]) - loss * (temps[j] - t_amb)) / heat_cap)
-            t_gas = temps[j] + (t_gas - temps[j]) * decay
+            rates.append(self.plant.cell_temperature_rate(temps[j], t_gas, self.heat_capacity, coupling, self.loss,
+                                                          self.ambient))
+            t_gas = self.plant.gas_outlet_temperature(temps[j], t_gas, decay)
         return rates
 
     def thermal_implicit_euler(self, temps: list, u: ca.SX | ca.MX, dt: float) -> list:
-        """End-of-step cell temperatures [K]: the kernel's closed-form implicit Euler, cells in flow order."""
-        p = self.p
-        heat_cap, loss, t_amb = p[P["heat_capacity_per_cell_j_k"]], p[P["ambient_loss_per_cell_w_k"]], \
-            p[P["ambient_temperature_k"]]
+        """End-of-step cell temperatures [K]: the kernel's closed-form implicit Euler
+        (:func:`scr_env.physics.thermal.cell_temperature_step`), cells in flow order."""
         coupling, decay = self.thermal(u)
-        t_gas = u[1]
+        t_gas = u[I_TIN]
         new = []
         for j in range(self.n):
-            t_new = (heat_cap * temps[j] + dt * (coupling * t_gas + loss * t_amb)) / (heat_cap + dt * (coupling + loss))
+            t_new, t_gas = self.plant.cell_temperature_step(temps[j], t_gas, self.heat_capacity, coupling, self.loss,
+                                                            self.ambient, dt, decay)
             new.append(t_new)
-            t_gas = t_new + (t_gas - t_new) * decay
         return new
 
     def cell_rootfinder(self) -> ca.Function:

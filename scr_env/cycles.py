@@ -25,8 +25,9 @@ the 450-700 K band of the thesis data (PHYSICS.md section 1).
 
 User CSV format (:func:`from_csv`)
 ----------------------------------
-Plain comma-separated text. Lines starting with ``#`` are comments; the first other line is the header. Columns
-(any order, extra columns ignored):
+Plain comma-separated UTF-8 text (a byte-order mark, as spreadsheets write it, is accepted). Lines starting with
+``#`` are comments; the first other line is the header, each column named once. Columns (any order, extra columns
+ignored):
 
 ==========================  ========  ==========================================================================
 column                      unit      notes
@@ -34,8 +35,9 @@ column                      unit      notes
 time_s                      s         required, strictly increasing (shifted so that the trace starts at 0)
 exhaust_flow_mol_s          mol/s     required unless exhaust_mass_flow_kg_s is given (M = 28.9 g/mol)
 exhaust_mass_flow_kg_s      kg/s      alternative to exhaust_flow_mol_s
-scr_inlet_temperature_k     K         required, in kelvin: a value below 200 K raises (degC data), a cycle
-                                      below 273.15 K throughout warns (degC data or a sub-zero cold start)
+scr_inlet_temperature_k     K         required, in kelvin, 200 to 1500 K: a value below 200 K raises (degC
+                                      data), above 1500 K raises; a record below 273.15 K throughout, or with a
+                                      median below 373.15 K that is no warm-up, warns (likely degC data)
 nox_ppm                     ppm       required, SCR-inlet NOx (mole ppm)
 no2_fraction                -         optional NO2/NOx in [0, 1], default 0.3 (a DOC in its active window)
 engine_power_kw             kW        optional, default 0: then ``positive_work_kwh`` is 0 and g/kWh figures are
@@ -44,8 +46,17 @@ engine_speed_rpm            rpm       optional, default 0 (unknown)
 engine_torque_nm            Nm        optional, default 0 (unknown)
 ==========================  ========  ==========================================================================
 
-The data are linearly interpolated to ``t = 0, dt, 2 dt, ... <= t_end - t_start``. :meth:`ExhaustTrace.to_csv`
-writes this format. The engine model and ``cold_start`` play no role for measured data.
+The data are linearly interpolated to ``t = 0, dt, 2 dt, ... <= t_end - t_start``, at most
+:data:`MAX_TRACE_SAMPLES` samples. :meth:`ExhaustTrace.to_csv` writes this format. The engine model and
+``cold_start`` play no role for measured data.
+
+Validation
+----------
+Every trace, whatever its source, is checked when it is built (:class:`ExhaustTrace`): finite values, flows >= 0,
+NOx in [0, 1e6] ppm, NO2/NOx in [0, 1], SCR-inlet temperature in [200, 1500] K, engine speed >= 0, ``time_s``
+advancing by exactly ``dt`` per sample, ``dt`` finite and positive, and at most :data:`MAX_TRACE_SAMPLES` samples
+(the drive cycles and CSV replay check that bound before allocating anything). A violation raises ValueError
+naming the field, its unit and the first offending sample.
 """
 from __future__ import annotations
 
@@ -71,14 +82,27 @@ from scr_env.engine import (
     steady_state_solid_temperatures,
 )
 
-__all__ = ["ExhaustTrace", "available_cycles", "denormalise", "from_csv", "load_cycle", "random_cycle"]
+__all__ = ["MAX_TEMPERATURE_K", "MAX_TRACE_SAMPLES", "MIN_TEMPERATURE_K", "ExhaustTrace", "available_cycles",
+           "denormalise", "from_csv", "load_cycle", "random_cycle"]
 
 _MAX_DT_S = 10.0  # s; coarser sampling would alias the cycles' 1 Hz content [chosen]
 _RANDOM_DEFAULT_DURATION_S = 1800.0  # s, as long as the WHTC [chosen]
-# Below this an SCR-inlet temperature in a CSV is taken for degC (or another unit), not kelvin: -73 degC, colder than
-# the coldest air a truck starts in (record lows of inhabited places are about -68 degC, 205 K), so no measured
-# cold start is rejected, while degC data with idle, motoring or a cold start (values of 20-200) are [chosen]
+# Below this an SCR-inlet temperature is taken for degC (or another unit), not kelvin: -73 degC, colder than the
+# coldest air a truck starts in (record lows of inhabited places are about -68 degC, 205 K), so no measured cold
+# start is rejected, while degC data with idle, motoring or a cold start (values of 20-200) are [chosen]
 _MIN_PLAUSIBLE_TEMPERATURE_K = 200.0
+#: K, the hottest SCR-inlet gas accepted: diesel exhaust after the turbine stays below about 1000 K, cordierite
+#: bricks melt near 1700 K, and the observation space ends at 1500 K [chosen]
+MAX_TEMPERATURE_K = 1500.0
+MIN_TEMPERATURE_K = _MIN_PLAUSIBLE_TEMPERATURE_K  # K (see above)
+#: the most samples one trace may have: 5 million (58 days at 1 s, the WHTC at dt = 0.36 ms). Its nine float64
+#: arrays then take 360 MB, and an environment holds about as much again (drive table, sensor noise); a finer dt or
+#: a longer record raises ValueError before anything is allocated [chosen: fits a laptop, far above any use]
+MAX_TRACE_SAMPLES = 5_000_000
+# A CSV whose median temperature is below this, and which is not a warm-up, is probably in degC: a running diesel's
+# SCR inlet is hotter than boiling water except in the first minutes after a cold start [chosen]
+_DEGC_MEDIAN_K = 373.15
+_WARM_UP_RISE_K = 100.0  # K: last tenth of a record this much warmer than its first tenth: a warm-up [chosen]
 _DEFAULT_NO2_FRACTION = 0.3  # - , user CSV without NO2/NOx: a DOC in its active window [chosen, PHYSICS.md 4]
 _TABLES = {"whtc": "whtc_normalized.csv", "whsc": "whsc_normalized_1hz.csv"}
 _CSV_COLUMNS = (
@@ -95,7 +119,8 @@ _ARRAY_FIELDS = (
 class ExhaustTrace:
     """SCR-inlet conditions and engine operating point, sampled every ``dt`` seconds from ``t = 0``.
 
-    Every array field is float64 with length ``n_steps``.
+    Every array field is float64 with length ``n_steps``. The constructor validates every field (module docstring,
+    "Validation") and raises ValueError naming the first violation.
 
     Attributes
     ----------
@@ -132,16 +157,47 @@ class ExhaustTrace:
     no2_fraction: np.ndarray
 
     def __post_init__(self) -> None:
+        if not isinstance(self.name, str):
+            raise ValueError(f"ExhaustTrace.name must be a string, got {type(self.name).__name__}")  # noqa: TRY004
+        try:
+            dt = float(self.dt)
+        except (TypeError, ValueError):
+            raise ValueError(f"ExhaustTrace.dt must be a number of seconds, got {self.dt!r}") from None
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"ExhaustTrace.dt must be a finite positive number of seconds, got {self.dt!r}")
+        object.__setattr__(self, "dt", dt)
         n = None
         for name in _ARRAY_FIELDS:
-            arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
+            try:
+                arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"ExhaustTrace.{name} must be an array of real numbers") from None
             if arr.ndim != 1:
                 raise ValueError(f"{name} must be one-dimensional")
             if n is None:
                 n = arr.size
             elif arr.size != n:
                 raise ValueError(f"{name} has length {arr.size}, expected {n}")
+            bad = np.flatnonzero(~np.isfinite(arr))
+            if bad.size:
+                raise ValueError(f"ExhaustTrace.{name} must be finite; {arr[bad[0]]} at sample {bad[0]}")
             object.__setattr__(self, name, arr)
+        if n == 0:
+            raise ValueError("ExhaustTrace needs at least one sample")
+        _check_samples(n, f"ExhaustTrace {self.name!r}")
+        for name, lo, hi, unit in _RANGES:
+            arr = getattr(self, name)
+            out = np.flatnonzero((arr < lo) | (arr > hi))
+            if out.size:
+                raise ValueError(f"ExhaustTrace.{name} must lie in [{lo:g}, {hi:g}] {unit}; {arr[out[0]]:g} {unit} at "
+                                 f"sample {out[0]} (t = {self.time_s[out[0]]:g} s)")
+        if n > 1:
+            step = np.diff(self.time_s)
+            if not np.all(np.abs(step - dt) <= 1e-6 * dt):
+                k = int(np.argmax(np.abs(step - dt)))
+                raise ValueError(f"ExhaustTrace.time_s must increase by dt = {dt:g} s per sample (unique, monotonic, "
+                                 f"evenly spaced); it goes from {self.time_s[k]:g} s to {self.time_s[k + 1]:g} s at "
+                                 f"sample {k}. Resample uneven data with from_csv")
 
     @property
     def n_steps(self) -> int:
@@ -175,7 +231,27 @@ def available_cycles() -> tuple[str, ...]:
     return ("whtc", "whsc", "random")
 
 
+# the physical range of each field of a trace (field, low, high, unit)
+_RANGES = (
+    ("exhaust_flow_mol_s", 0.0, math.inf, "mol/s"),
+    ("exhaust_mass_flow_kg_s", 0.0, math.inf, "kg/s"),
+    ("scr_inlet_temperature_k", MIN_TEMPERATURE_K, MAX_TEMPERATURE_K, "K"),
+    ("nox_ppm", 0.0, 1.0e6, "ppm"),
+    ("no2_fraction", 0.0, 1.0, "(NO2/NOx)"),
+    ("engine_speed_rpm", 0.0, math.inf, "rpm"),
+)
+
+
 # ----------------------------------------------------------------------------------------------------------- helpers
+def _check_samples(n: float, what: str, dt: float | None = None) -> None:
+    """ValueError if a trace of ``n`` samples would exceed :data:`MAX_TRACE_SAMPLES` (checked before allocating)."""
+    if not n <= MAX_TRACE_SAMPLES:  # also NaN and inf (a denormal dt)
+        hint = f" at dt = {dt:g} s" if dt is not None else ""
+        raise ValueError(f"{what}{hint} would have {n:,.0f} samples, more than MAX_TRACE_SAMPLES = "
+                         f"{MAX_TRACE_SAMPLES:,} (about {MAX_TRACE_SAMPLES * 9 * 8 / 1e6:.0f} MB per trace); use a "
+                         f"larger dt or a shorter record")
+
+
 def _check_dt(dt: float) -> float:
     try:
         value = float(dt)
@@ -199,6 +275,12 @@ def _read_csv(text: str, source: str) -> dict[str, np.ndarray]:
     if not lines:
         raise ValueError(f"{source}: no header line")
     header = [h.strip() for h in lines[0].split(",")]
+    seen: set[str] = set()
+    for h in header:
+        if h in seen:
+            raise ValueError(f"{source}: column {h!r} appears twice in the header; which one holds the data is "
+                             f"ambiguous")
+        seen.add(h)
     rows = []
     for i, line in enumerate(lines[1:], start=2):
         parts = line.split(",")
@@ -274,6 +356,7 @@ def _trace_from_operating_points(
     name: str, dt: float, speed_1hz: np.ndarray, torque_1hz: np.ndarray, engine: EngineParams, cold_start: bool
 ) -> ExhaustTrace:
     """1 Hz operating points (row k at t = k s) -> sampled engine-out model -> DOC/DPF -> SCR-inlet trace."""
+    _check_samples(speed_1hz.size / dt, f"the {name} cycle ({speed_1hz.size} s)", dt)
     n_steps = math.floor(speed_1hz.size / dt + 1e-9)
     time = np.arange(n_steps, dtype=np.float64) * dt
     grid = np.arange(speed_1hz.size, dtype=np.float64)
@@ -395,6 +478,7 @@ def _rate_limit(setpoint: np.ndarray, rate_per_step: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=32)
 def _random_trace(duration_s: float, seed: int, dt: float, engine: EngineParams, cold_start: bool) -> ExhaustTrace:
+    _check_samples(duration_s / dt, f"a random cycle of {duration_s:g} s", dt)
     rng = np.random.default_rng(seed)
     n_seconds = math.ceil(duration_s)
     n_set, tau_set = _random_targets(n_seconds + 1, rng)
@@ -459,9 +543,9 @@ _REQUIRED = ("time_s", "scr_inlet_temperature_k", "nox_ppm")
 
 def _from_csv_uncached(path: Path, dt: float) -> ExhaustTrace:
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ValueError(f"path: cannot read {str(path)!r}: {exc}") from None
+        text = path.read_text(encoding="utf-8-sig")  # -sig: a byte-order mark (spreadsheet exports) is dropped
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"path: cannot read {str(path)!r} as UTF-8 text: {exc}") from None
     cols = _read_csv(text, str(path))
     missing = [c for c in _REQUIRED if c not in cols]
     if "exhaust_flow_mol_s" not in cols and "exhaust_mass_flow_kg_s" not in cols:
@@ -487,6 +571,12 @@ def _from_csv_uncached(path: Path, dt: float) -> ExhaustTrace:
             raise ValueError(f"{path}: column {c} must lie in [{lo}, {hi}] (negative flows/concentrations are invalid)")
     if np.any(cols["scr_inlet_temperature_k"] <= 0.0):
         raise ValueError(f"{path}: column scr_inlet_temperature_k must be positive (kelvin)")
+    temps = cols["scr_inlet_temperature_k"]
+    if np.any(temps > MAX_TEMPERATURE_K):
+        row = int(np.argmax(temps)) + 1
+        raise ValueError(f"{path}: column scr_inlet_temperature_k reaches {temps.max():g} K (data row {row}), above "
+                         f"{MAX_TEMPERATURE_K:g} K, hotter than any diesel exhaust: the column must be in kelvin "
+                         f"(a value in degF, or a sensor fault?)")
     t_min = float(cols["scr_inlet_temperature_k"].min())
     if t_min < _MIN_PLAUSIBLE_TEMPERATURE_K:
         row = int(np.argmin(cols["scr_inlet_temperature_k"])) + 1
@@ -495,12 +585,22 @@ def _from_csv_uncached(path: Path, dt: float) -> ExhaustTrace:
             f"{row}), colder than any exhaust can be (the limit is {_MIN_PLAUSIBLE_TEMPERATURE_K:g} K); the column "
             f"must be in kelvin: if the data are in degC, convert them with T[K] = T[degC] + 273.15")
     t_max = float(cols["scr_inlet_temperature_k"].max())
+    t_median = float(np.median(temps))
+    tenth = max(temps.size // 10, 1)
+    warm_up = float(np.mean(temps[-tenth:]) - np.mean(temps[:tenth])) >= _WARM_UP_RISE_K
     if t_max < 273.15:
         warnings.warn(
             f"{path}: column scr_inlet_temperature_k never reaches 273.15 K (max {t_max:g} K = {t_max - 273.15:.1f} "
             f"degC): are the temperatures in degC? They are read as kelvin (T[K] = T[degC] + 273.15); a sub-zero "
             f"cold-start segment would be right as it is", UserWarning, stacklevel=4)
+    elif t_median < _DEGC_MEDIAN_K and not warm_up:
+        warnings.warn(
+            f"{path}: column scr_inlet_temperature_k has a median of {t_median:g} K ({t_median - 273.15:.1f} degC), "
+            f"colder than boiling water, and the record is no warm-up: a running diesel's SCR inlet is hotter. Are "
+            f"the temperatures in degC (a hot log in degC reads as {t_median:g} K)? They are read as kelvin; convert "
+            f"with T[K] = T[degC] + 273.15", UserWarning, stacklevel=4)
     t_rel = time - time[0]
+    _check_samples(t_rel[-1] / dt + 1.0, f"{path} (spanning {t_rel[-1]:g} s)", dt)
     n_steps = math.floor(t_rel[-1] / dt + 1e-9) + 1
     grid = np.arange(n_steps, dtype=np.float64) * dt
 
@@ -546,15 +646,17 @@ def from_csv(path: str | os.PathLike, dt: float = 0.5) -> ExhaustTrace:
     Raises
     ------
     ValueError
-        Unreadable file, missing columns (named), NaN or infinite values, non-increasing time, negative flows or
-        concentrations, NO2/NOx outside [0, 1], non-positive temperatures or temperatures below 200 K (data in
-        degC rather than kelvin), fewer than two rows, or a bad ``dt``.
+        Unreadable file, missing or duplicated columns (named), NaN or infinite values, non-increasing time,
+        negative flows or concentrations, NO2/NOx outside [0, 1], temperatures below 200 K (data in degC rather
+        than kelvin) or above 1500 K, fewer than two rows, a bad ``dt``, or more than :data:`MAX_TRACE_SAMPLES`
+        samples at that ``dt``.
 
     Warns
     -----
     UserWarning
-        The whole temperature column below 273.15 K: likely degC, but a sub-zero cold-start segment is possible, so
-        the data are used as they are.
+        Temperatures that look like degC: the whole column below 273.15 K, or a median below 373.15 K in a record
+        that is no warm-up (its last tenth less than 100 K warmer than its first). A sub-zero or short cold start in
+        kelvin is possible, so the data are used as they are.
     """
     dt = _check_dt(dt)
     p = Path(os.fspath(path)).expanduser().resolve()

@@ -92,8 +92,8 @@ class EngineParams:
     name: str = "generic_12p8l_330kw"
     displacement_m3: float = 0.0128  # m3 [chosen: generic 12.8 L six-cylinder, the LiU/Scania class of engine]
     # --- GTR No. 4 reference speeds (denormalisation of WHTC/WHSC) ------------------------------------------------
-    # The example values of a public study (data/cycles/PROVENANCE.md); kept for comparability with it. Our own full-load
-    # curve gives n_lo ~ 829, n_pref ~ 1291, n_hi ~ 2300 rpm by the GTR definitions (see reference_speeds()).
+    # The example values of a public study (data/cycles/PROVENANCE.md); kept for comparability with it. Our own
+    # full-load curve gives n_lo ~ 829, n_pref ~ 1291, n_hi ~ 2300 rpm by the GTR definitions (see reference_speeds()).
     idle_speed_rpm: float = 500.0  # rpm [data: PROVENANCE.md example]
     n_lo_rpm: float = 815.0  # rpm, lowest speed at 55 % of P_max [data: PROVENANCE.md example]
     n_pref_rpm: float = 1418.0  # rpm, 51 % of the torque integral [data: PROVENANCE.md example]

@@ -96,7 +96,7 @@ def rollout(policy: Any, cycle: Any = "whtc", seed: int | None = 0, max_steps: i
         env = UreaSCREnv(cycle=cycle, **env_kwargs)
     env = getattr(env, "unwrapped", env)
     if not isinstance(env, UreaSCREnv):
-        raise ValueError(f"env must be a UreaSCREnv, got {type(env).__name__}")
+        raise ValueError(f"env must be a UreaSCREnv, got {type(env).__name__}")  # noqa: TRY004 (documented)
     act = _as_policy(policy)
     obs, _ = env.reset(seed=seed, options=reset_options)
     n = env._n if max_steps is None else min(int(max_steps), env._n)

@@ -6,13 +6,15 @@ is stable-baselines3's ``VecNormalize`` (its statistics are shipped with each po
 
 1. **Features** (per step, ``FEATURES``): the observation itself, plus
 
-   | feature | unit | meaning |
-   |---|---|---|
-   | ``stoichiometric_adblue_g_s`` | g/s | AdBlue rate for ANR = 1 at the measured upstream NOx and flow (NOx ppm * 1e-6 * flow / NH3 per g AdBlue): the feed-forward term, a product a small network would otherwise have to learn |
-   | ``nh3_surplus_ema_g_s`` | g/s | exponential moving average (``surplus_time_constant_s``, 60 s) of the previous dose minus the stoichiometric dose: a crude proxy of the NH3 put into storage over the last minute |
-   | ``temperature_trend_k`` | K | inlet temperature minus its moving average (``temperature_time_constant_s``, 60 s): a rising temperature releases stored NH3 |
-   | ``tailpipe_sensor_ema_ppm`` | ppm | moving average (``sensor_time_constant_s``, 10 s) of the tailpipe NOx sensor |
-   | ``nh3_surplus_long_ema_g_s`` | g/s | as ``nh3_surplus_ema_g_s`` over ``long_surplus_time_constant_s`` (e.g. 600 s; only if > 0): the NH3 stored over the last minutes, which a later temperature rise releases |
+   * ``stoichiometric_adblue_g_s`` [g/s]: AdBlue rate for ANR = 1 at the measured upstream NOx and flow (NOx ppm *
+     1e-6 * flow / NH3 per g AdBlue): the feed-forward term, a product a small network would otherwise have to learn;
+   * ``nh3_surplus_ema_g_s`` [g/s]: exponential moving average (``surplus_time_constant_s``, 60 s) of the previous
+     dose minus the stoichiometric dose: a crude proxy of the NH3 put into storage over the last minute;
+   * ``temperature_trend_k`` [K]: inlet temperature minus its moving average (``temperature_time_constant_s``,
+     60 s): a rising temperature releases stored NH3;
+   * ``tailpipe_sensor_ema_ppm`` [ppm]: moving average (``sensor_time_constant_s``, 10 s) of the tailpipe NOx sensor;
+   * ``nh3_surplus_long_ema_g_s`` [g/s]: as ``nh3_surplus_ema_g_s`` over ``long_surplus_time_constant_s`` (e.g.
+     600 s; only if > 0): the NH3 stored over the last minutes, which a later temperature rise releases.
 
    With ``use_tailpipe_sensor=False`` the tailpipe sensor and its average are left out: the policy is then a
    learned feed-forward with memory (inlet conditions, its own previous doses), immune to the sensor's NH3

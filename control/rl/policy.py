@@ -2,11 +2,11 @@
 
 A shipped policy ``<name>`` is three files in ``control/policies/`` (or any folder):
 
-| file | content | format |
-|---|---|---|
-| ``<name>.zip`` | the stable-baselines3 model (network weights, hyperparameters) | SB3 zip |
-| ``<name>_vecnormalize.npz`` | observation normalisation: ``mean``, ``var`` of the pipeline output | numpy NPZ (no pickle) |
-| ``<name>.json`` | metadata: algorithm, observation layout, env kwargs, pipeline, normaliser settings, exact training command, seed, timesteps, wall time, versions, evaluation | JSON |
+* ``<name>.zip``: the stable-baselines3 model (network weights, hyperparameters), an SB3 zip;
+* ``<name>_vecnormalize.npz``: observation normalisation, ``mean`` and ``var`` of the pipeline output (numpy NPZ, no
+  pickle);
+* ``<name>.json``: metadata (JSON): algorithm, observation layout, env kwargs, pipeline, normaliser settings, exact
+  training command, seed, timesteps, wall time, versions, evaluation.
 
 The SB3 zip holds a JSON of the hyperparameters with a few cloudpickled entries (spaces, schedules) and the weights
 as ``torch.save`` files; that is the stable-baselines3 standard. :func:`load_policy` passes the spaces and the
@@ -29,6 +29,7 @@ from gymnasium import spaces
 
 from control.protocol import check_observation
 from control.rl.pipeline import EXPECTED_OBSERVATION, ObservationPipeline, PipelineConfig
+from scr_env.fileio import write_json
 
 __all__ = ["POLICY_DIR", "RLPolicy", "available_policies", "load_policy", "save_policy", "versions"]
 
@@ -170,18 +171,8 @@ def save_policy(model: Any, obs_mean: np.ndarray, obs_var: np.ndarray, folder: s
         "versions": versions(),
     })
     json_path = folder / f"{name}.json"
-    json_path.write_text(json.dumps(meta, indent=2, default=_json_default), encoding="utf-8")
+    write_json(json_path, meta)
     return json_path
-
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"cannot write {type(obj).__name__} as JSON")
 
 
 def available_policies(folder: str | Path | None = None) -> list[str]:

@@ -22,9 +22,9 @@ observation layout and reward as :class:`scr_env.envs.urea_scr.UreaSCREnv`:
   noise), tailpipe NOx sensor [ppm] = NO + 0.9 NO2 + NH3 of the model outputs (or the model's own sensor output if it
   has one), previous action;
 * reward: ``-(w_nox * NOx [g as NO2] + w_nh3 * NH3 [g] + w_adblue * AdBlue [g])`` per step, weights as the env's
-  ``reward_weights``;
-* truncation at the end of the cycle with ``info["episode_kpis"]`` (tailpipe and engine-out NOx g/kWh, conversion,
-  mean and peak slip, AdBlue g);
+  ``reward_weights`` (the plant's own definition, :func:`scr_env.envs.kpis.account_step`);
+* truncation at the end of the cycle with ``info["episode_kpis"]`` (:func:`scr_env.envs.kpis.episode_kpis`: tailpipe
+  and engine-out NOx g and g/kWh, conversion, mean and peak slip, AdBlue g; no N2O or nitrogen balance);
 * reset: the model state is settled for 120 s on the first cycle sample without dosing (an empty catalyst, as the
   plant's reset with zero coverage).
 """
@@ -40,14 +40,15 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from scr_env.constants import NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
+from scr_env.constants import UREA_G_MIN_PER_ADBLUE_G_S
 from scr_env.cycles import ExhaustTrace
 from scr_env.envs.config import make_config
 from scr_env.envs.core import OBS_BASE, OBS_BASE_HIGH, OBS_BASE_LOW
+from scr_env.envs.kpis import N_ACC, N_TERMS, account_batch, episode_kpis
+from scr_env.physics import kernel as K
 
 __all__ = [
     "INPUT_SIGNALS",
-    "StackedModels",
     "SurrogateModel",
     "SurrogateSCREnv",
     "SurrogateVectorEnv",
@@ -56,7 +57,6 @@ __all__ = [
     "sim_to_real_gap",
 ]
 
-UREA_G_MIN_PER_ADBLUE_G_S = 60.0 * 0.325  # g/min urea per g/s AdBlue (AUS 32: 32.5 wt% urea)
 #: input signals a surrogate may use, with their units
 INPUT_SIGNALS = {"inlet_nox_ppm": "ppm", "inlet_temperature_k": "K", "exhaust_flow_mol_s": "mol/s",
                  "inlet_no2_fraction": "-", "adblue_g_s": "g/s", "urea_dosing_g_min": "g/min"}
@@ -160,13 +160,20 @@ class _Batch:
         self.n = n
         self.dt = dt
         self.max_rate = max_rate_g_s
-        self.w = weights
+        self.w = np.ascontiguousarray(np.broadcast_to(weights, (n, N_TERMS)), dtype=np.float64)
         self.x = np.zeros((n, surrogate.n_states))
         self.k = np.zeros(n, dtype=np.int64)
         self.end = np.zeros(n, dtype=np.int64)
         self.drives: list[np.ndarray] = [np.zeros((1, 5))] * n
         self.obs = np.zeros((n, len(OBS_BASE)), dtype=np.float32)
-        self.acc = np.zeros((n, 7))  # engine NOx g, tailpipe NOx g, NH3 ppm s, NH3 peak, AdBlue g, time s, kWh
+        # the plant step's input and output rows (scr_env.physics.kernel layouts), filled with what the model has,
+        # so the reward and KPIs are the plant's (scr_env.envs.kpis)
+        self.inputs = np.zeros((n, len(K.INPUT_FIELDS)))
+        self.out = np.zeros((n, len(K.OUTPUT_FIELDS)))
+        self.power = np.zeros(n)
+        self.terms = np.zeros((n, N_TERMS))
+        self.reward = np.zeros(n)
+        self.acc = np.zeros((n, N_ACC))
         self.names = [""] * n
 
     def start(self, i: int, trace: ExhaustTrace, offset: int = 0) -> None:
@@ -193,18 +200,14 @@ class _Batch:
         rows = np.stack([self.drives[i][self.k[i]] for i in range(self.n)])
         self.x, y = self.s.step(self.x, self.s.inputs(rows, rate))
         nox, nh3, sensor = self.s.outputs(y, rows)
-        flow, dt = rows[:, 0], self.dt
-        nox_g = nox * 1e-6 * flow * NO2_MOLAR_MASS_G_MOL * dt
-        nh3_g = nh3 * 1e-6 * flow * NH3_MOLAR_MASS_G_MOL * dt
-        reward = -(self.w[0] * nox_g + self.w[1] * nh3_g + self.w[2] * rate * dt)
-        acc = self.acc
-        acc[:, 0] += rows[:, 2] * 1e-6 * flow * NO2_MOLAR_MASS_G_MOL * dt
-        acc[:, 1] += nox_g
-        acc[:, 2] += nh3 * dt
-        acc[:, 3] = np.maximum(acc[:, 3], nh3)
-        acc[:, 4] += rate * dt
-        acc[:, 5] += dt
-        acc[:, 6] += np.maximum(rows[:, 4], 0.0) * dt / 3600.0
+        self.inputs[:, K.I_FLOW] = rows[:, 0]
+        self.inputs[:, K.I_NOX] = rows[:, 2]
+        self.inputs[:, K.I_ADBLUE] = rate
+        self.out[:, K.O_NO] = nox  # the model's tailpipe NOx, counted as NO (the reward does not split NO/NO2)
+        self.out[:, K.O_NH3] = nh3
+        self.power[:] = rows[:, 4]
+        account_batch(self.inputs, self.power, self.dt, self.out, self.w, self.terms, self.reward, self.acc)
+        reward = self.reward.copy()
         self.k += 1
         nxt = np.minimum(self.k, self.end - 1)
         nrows = np.stack([self.drives[i][nxt[i]] for i in range(self.n)])
@@ -212,12 +215,7 @@ class _Batch:
         return reward, self.k >= self.end
 
     def kpis(self, i: int) -> dict[str, float]:
-        eng, tail, ppm_s, peak, adblue, t, kwh = self.acc[i]
-        return {"nox_conversion": 1.0 - tail / eng if eng > 0 else float("nan"),
-                "engine_out_nox_g_per_kwh": eng / kwh if kwh > 0 else float("nan"),
-                "tailpipe_nox_g_per_kwh": tail / kwh if kwh > 0 else float("nan"),
-                "mean_nh3_slip_ppm": ppm_s / t if t > 0 else float("nan"), "peak_nh3_slip_ppm": float(peak),
-                "adblue_g": float(adblue), "engine_work_kwh": float(kwh), "duration_s": float(t)}
+        return episode_kpis(self.acc[i])
 
 
 def _spaces(max_rate: float) -> tuple[spaces.Box, spaces.Box]:
@@ -271,6 +269,10 @@ class SurrogateSCREnv(gym.Env):
             self._needs_reset = True
             info["episode_kpis"] = self._b.kpis(0)
         return self._b.obs[0].copy(), float(reward[0]), False, bool(done[0]), info
+
+    def episode_kpis(self) -> dict[str, float]:
+        """The KPIs of the current episode so far (as the plant's :meth:`UreaSCREnv.episode_kpis`)."""
+        return self._b.kpis(0)
 
 
 class SurrogateVectorEnv(VectorEnv):
@@ -331,31 +333,6 @@ class SurrogateVectorEnv(VectorEnv):
         return self._b.obs.copy(), reward, np.zeros(self.num_envs, dtype=bool), done.copy(), infos
 
 
-class StackedModels:
-    """Single-output models side by side as one MIMO model: ``to_casadi`` concatenates their states; every model
-    gets the same inputs and gives one output (for MISO identifiers such as :class:`ident.multiple_model.MultipleModel`).
-    """
-
-    def __init__(self, models: Sequence[Any]) -> None:
-        self.models = list(models)
-
-    def to_casadi(self) -> Any:
-        import casadi as ca
-
-        fs = [m.to_casadi() for m in self.models]
-        nu = fs[0].size1_in(1)
-        sizes = [f.size1_in(0) for f in fs]
-        x = ca.SX.sym("x", sum(sizes))
-        u = ca.SX.sym("u", nu)
-        xs, ys, i = [], [], 0
-        for f, n in zip(fs, sizes):
-            xn, y = f(x[i:i + n], u)
-            xs.append(xn)
-            ys.append(y)
-            i += n
-        return ca.Function("step", [x, u], [ca.vertcat(*xs), ca.vertcat(*ys)], ["x", "u"], ["x_next", "y"])
-
-
 # --------------------------------------------------------------------------------------------- experiment helpers
 def fit_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str = "mm-arx",
                          na: int = 2, nb: int = 2) -> tuple[SurrogateModel, dict[str, Any]]:
@@ -375,6 +352,7 @@ def fit_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str = "mm-a
     from ident.multiple_model import MultipleModel, quantile_edges
     from ident.plant_data import excitation_dataset
     from ident.preprocessing import Normalizer
+    from ident.stack import OutputStack
 
     exc = RandomSteps(low=-1.0, high=1.0, min_hold_s=4.0, max_hold_s=60.0)
     sets = [excitation_dataset("random", seed=s, base_anr=0.9, excitation=exc).select(outputs=[0, 1])
@@ -412,7 +390,7 @@ def fit_surrogate(seeds: Sequence[int] = (101, 102, 103, 104), kind: str = "mm-a
         edges = [quantile_edges(un[:, c], 2) for c in (2, 3)]
         parts = [MultipleModel(scheduling=[2, 3], edges=edges, local="arx", na=na, nb=nb, nk=0).fit(un, yn[:, [j]])
                  for j in range(yn.shape[1])]
-        model = StackedModels(parts)
+        model = OutputStack.from_models(parts)  # MISO local models side by side as one MIMO model
         fit = [float(np.atleast_1d(compare(m, val_n.select(outputs=[j])).fit)[0]) for j, m in enumerate(parts)]
     else:
         raise ValueError(f"kind must be 'arx' or 'mm-arx', got {kind!r}")
@@ -453,20 +431,7 @@ def sim_to_real_gap(policy: Any, surrogate_info: dict[str, Any], cycles: Sequenc
     sur = surrogate_info["surrogate_object"]
     out: dict[str, Any] = {}
     for cycle in cycles:
-        env = SurrogateSCREnv(sur, cycle=cycle)
-        rows = []
-        for s in seeds:
-            obs, _ = env.reset(seed=s)
-            if hasattr(policy, "reset"):
-                policy.reset()
-            start = True
-            while True:
-                action, _ = policy.predict(obs, episode_start=np.array([start]), deterministic=True)
-                start = False
-                obs, _, _, trunc, info = env.step(action)
-                if trunc:
-                    rows.append(info["episode_kpis"])
-                    break
+        rows = [r.kpis for r in evaluate(policy, env=SurrogateSCREnv(sur, cycle=cycle), seeds=seeds, name="rl")]
         sim = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
         real = summarise(evaluate(policy, cycles=(cycle,), seeds=seeds, name="rl"))[cycle]["rl"]
         out[cycle] = {"surrogate": sim, "plant": {k: real[k] for k in sim if k in real},

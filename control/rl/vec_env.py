@@ -1,7 +1,8 @@
 """Stable-baselines3 ``VecEnv`` view of a native gymnasium vector environment (one kernel call for all plants).
 
-:class:`UreaSCRVectorEnv` steps all plants with one call of the compiled physics and autoresets in
-``AutoresetMode.SAME_STEP``: when a plant's cycle ends, the step already returns its *reset* observation and puts the
+:class:`UreaSCRVectorEnv` steps all plants with one call of the compiled physics; made with
+``autoreset_mode="same_step"`` (as :func:`make_sb3_vec_env` does) it autoresets in ``AutoresetMode.SAME_STEP``:
+when a plant's cycle ends, the step already returns its *reset* observation and puts the
 last observation of the ended episode into ``infos["final_obs"][i]``. That is exactly stable-baselines3's convention,
 only spelled differently, so the adapter just translates:
 
@@ -9,9 +10,11 @@ only spelled differently, so the adapter just translates:
 |-----------------------------------------------|----------------------------------------------------------|
 | ``terminated``, ``truncated`` (bool arrays)    | ``dones = terminated | truncated``                        |
 | ``infos["final_obs"][i]``                     | ``infos[i]["terminal_observation"]``                     |
-| ``truncated[i] and not terminated[i]``        | ``infos[i]["TimeLimit.truncated"] = True`` (SB3 bootstraps the value of the terminal observation) |
+| ``truncated[i] and not terminated[i]``        | ``infos[i]["TimeLimit.truncated"] = True`` (1)           |
 | ``infos["final_info"]["episode_kpis"]``       | ``infos[i]["episode_kpis"]`` (dict of floats)            |
 | per-step info arrays (``nox_cost``, ...)      | ``infos[i][key]`` scalars (only if ``per_step_info``)    |
+
+(1) SB3 then bootstraps the value of the terminal observation.
 
 The end of a drive cycle is a truncation, never a termination: the catalyst goes on, so the value of the last state
 is bootstrapped.
@@ -43,7 +46,9 @@ class GymVectorToSB3(VecEnv):
     def __init__(self, venv: gym.vector.VectorEnv, per_step_info: bool = False) -> None:
         mode = venv.metadata.get("autoreset_mode")
         if mode != AutoresetMode.SAME_STEP:
-            raise ValueError(f"the vector environment must autoreset in AutoresetMode.SAME_STEP, got {mode!r}")
+            raise ValueError(f"the vector environment must autoreset in AutoresetMode.SAME_STEP, got {mode!r}: make "
+                             f"it with autoreset_mode='same_step' (gym.make_vec(..., autoreset_mode='same_step')), "
+                             f"or use make_sb3_vec_env, which does")
         self.venv = venv
         self.per_step_info = bool(per_step_info)
         self._actions: np.ndarray | None = None
@@ -132,8 +137,10 @@ class GymVectorToSB3(VecEnv):
 
 def make_sb3_vec_env(num_envs: int, env_id: str = "scr_env/UreaSCR-v0", per_step_info: bool = False,
                      **env_kwargs: Any) -> GymVectorToSB3:
-    """``gym.make_vec(env_id, num_envs, vectorization_mode="vector_entry_point", **env_kwargs)`` as an SB3 VecEnv."""
+    """``gym.make_vec(env_id, num_envs, vectorization_mode="vector_entry_point", autoreset_mode="same_step",
+    **env_kwargs)`` as an SB3 VecEnv."""
     import scr_env  # noqa: F401  (registers the environment)
 
+    env_kwargs.setdefault("autoreset_mode", AutoresetMode.SAME_STEP)
     venv = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **env_kwargs)
     return GymVectorToSB3(venv, per_step_info=per_step_info)

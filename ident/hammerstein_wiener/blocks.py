@@ -7,7 +7,17 @@ Every block maps a signal ``x`` (shape (N,)) to ``v = g(x; p)`` with parameters 
 * ``casadi(x, p)`` the same function on CasADi symbols (for ``to_casadi``),
 * ``initial_params(x)``: the starting parameters for data ``x`` (identity-like where possible), which may also set
   data-dependent constants (knots, normalisation) once, before the fit,
+* ``fit_params(x, target)``: the parameters whose ``g(x)`` is closest to ``target`` in least squares, for blocks
+  linear in their parameters (``linear_in_params()``; bounds honoured) and the absolute value (its offset), else
+  None: the data-driven starts of the estimator,
+* ``random_params(x, rng)``: parameters for a random restart (a random mix of a line and a parabola over the data
+  range, fitted by ``fit_params``; the initial parameters for blocks it cannot fit),
 * ``to_dict()`` / :func:`block_from_dict` for saving (JSON).
+
+``even`` marks blocks that are even functions (``g(c - x) = g(c + x)`` about a centre ``c``): through them the best
+linear approximation of a system driven by a symmetric signal is zero, so a fit started from the linear model
+cannot find them; the estimator then tries random restarts (see
+:class:`~ident.hammerstein_wiener.HammersteinWiener`, ``n_restarts``).
 
 ``estimate`` says whether the parameters are estimated (True) or held at their given or initial values.
 
@@ -23,6 +33,10 @@ block                  g(x; p)                                                  
 :class:`Saturation`    min(max(x, lower), upper)                                       lower, upper
 :class:`DeadZone`      x - upper above upper, x - lower below lower, 0 between         lower, upper
 :class:`Polynomial`    sum_k c_k x^k, k = 0..degree                                    c_0..c_degree
+:class:`OddPolynomial` sum_k c_k x^(2k+1), k = 0..(degree-1)/2 (odd: g(-x) = -g(x))   c_0..c_(degree-1)/2
+:class:`EvenPolynomial` sum_k c_k (x - centre)^(2k), k = 0..degree/2 (even about the      c_0..c_degree/2
+                       given centre)
+:class:`AbsoluteValue` |x - centre| + offset (a sign-insensitive sensor)               centre, offset
 =====================  ==============================================================  =========================
 """
 from __future__ import annotations
@@ -33,8 +47,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Arrhenius", "DeadZone", "Identity", "PiecewiseLinear", "Polynomial", "Saturation",
-           "StaticNonlinearity", "block_from_dict"]
+__all__ = ["AbsoluteValue", "Arrhenius", "DeadZone", "EvenPolynomial", "Identity", "OddPolynomial",
+           "PiecewiseLinear", "Polynomial", "Saturation", "StaticNonlinearity", "block_from_dict"]
 
 _BLOCKS: dict[str, type[StaticNonlinearity]] = {}
 
@@ -48,6 +62,8 @@ class StaticNonlinearity:
     """Base class: subclasses implement ``value``, ``dx``, ``dp``, ``casadi``, ``initial_params``."""
 
     estimate: bool = False
+    #: True for blocks that are even functions about a centre (see the module docstring).
+    even: bool = False
 
     def n_params(self) -> int:
         raise NotImplementedError
@@ -84,6 +100,40 @@ class StaticNonlinearity:
         """A matrix ``R`` (n_rough, n_params) whose ``R @ p`` measures the block's departure from a straight line
         (penalised by the estimator's ``smoothness``), or None when the block has no such measure."""
         return None
+
+    def linear_in_params(self) -> bool:
+        """True when ``g(x; p) = Phi(x) p`` with ``Phi`` independent of ``p`` (then ``dp(x, p) = Phi(x)``)."""
+        return False
+
+    def fit_params(self, x: np.ndarray, target: np.ndarray) -> np.ndarray | None:
+        """Least-squares parameters with ``g(x; p)`` closest to ``target`` (within :meth:`bounds`), or None when the
+        block is not linear in its parameters. Data-dependent constants (knots) are placed on ``x`` if not set yet."""
+        if not self.linear_in_params():
+            return None
+        x, target = _x(x), _x(target)
+        p0 = self.initial_params(x)   # idempotent; places the knots of a piecewise-linear block
+        phi = self.dp(x, p0)
+        lo, hi = self.bounds()
+        if np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)):
+            from scipy.optimize import lsq_linear
+
+            return np.asarray(lsq_linear(phi, target, bounds=(lo, hi)).x, dtype=float)
+        return np.linalg.lstsq(phi, target, rcond=None)[0]
+
+    def random_params(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Parameters for a random restart: :meth:`fit_params` to ``m + s (a z + b (z^2 - 1))`` over the data
+        (``z = (x - m) / s``, m and s the mean and SD of x, a and b standard normal), i.e. a random mix of a line and
+        a parabola (an odd block keeps the line, an even one the parabola); the initial parameters for blocks it
+        cannot fit."""
+        x = _x(x)
+        p0 = self.initial_params(x)
+        m, s = float(np.mean(x)), float(np.std(x))
+        if s <= 0:
+            return p0
+        z = (x - m) / s
+        a, b = rng.standard_normal(2)
+        p = self.fit_params(x, m + s * (a * z + b * (z * z - 1.0)))
+        return p0 if p is None else p
 
     def to_dict(self) -> dict[str, Any]:
         return {"type": type(self).__name__, **{k: _plain(v) for k, v in vars(self).items()}}
@@ -290,6 +340,9 @@ class PiecewiseLinear(StaticNonlinearity):
         p = np.asarray(p, dtype=float)
         return np.asarray(self.knots, dtype=float), (np.cumsum(p) if self._monotone() else p)
 
+    def linear_in_params(self) -> bool:
+        return not self.estimate_knots
+
     def scaled_params(self, p: np.ndarray, c: float) -> np.ndarray | None:
         p = np.asarray(p, dtype=float).copy()
         if self.estimate_knots:
@@ -404,7 +457,7 @@ class Saturation(StaticNonlinearity):
 
     def _limits(self, p: np.ndarray) -> tuple[float, float]:
         lim = [float(self.lower), float(self.upper)]
-        for i, v in zip(self._finite(), p):
+        for i, v in zip(self._finite(), p, strict=False):
             lim[i] = float(v)
         return lim[0], lim[1]
 
@@ -503,6 +556,9 @@ class Polynomial(StaticNonlinearity):
     def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
         return np.vander(_x(x), self.n_params(), increasing=True)
 
+    def linear_in_params(self) -> bool:
+        return True
+
     def scaled_params(self, p: np.ndarray, c: float) -> np.ndarray | None:
         return np.asarray(p, dtype=float) * c
 
@@ -511,3 +567,206 @@ class Polynomial(StaticNonlinearity):
         for c in np.asarray(p, dtype=float)[::-1]:  # Horner
             out = out * x + float(c)
         return out
+
+
+def _check_degree(degree: Any, parity: int, name: str) -> int:
+    """``degree`` as an int >= 1 of the given parity (0 even, 1 odd), or a ValueError naming the block."""
+    try:
+        ok = int(degree) == degree and degree >= 1 and int(degree) % 2 == parity
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        kind = "an even integer >= 2" if parity == 0 else "an odd integer >= 1"
+        raise ValueError(f"{name}: degree must be {kind}, got {degree!r}")
+    return int(degree)
+
+
+@_register
+class OddPolynomial(StaticNonlinearity):
+    """``g(x) = sum_k c_k x^(2k+1)`` for k = 0..(degree-1)/2: an odd function (``g(-x) = -g(x)``, no offset), e.g. a
+    symmetric saturation-like or cubic characteristic; starts as the identity (c_0 = 1) unless ``coefficients``.
+
+    Parameters
+    ----------
+    degree : int
+        Odd degree (>= 1; 3 gives ``c_0 x + c_1 x^3``).
+    coefficients : sequence of float, optional
+        ``(degree + 1) / 2`` starting coefficients.
+    estimate : bool
+        Estimate the coefficients.
+    """
+
+    def __init__(self, degree: int = 3, coefficients: Sequence[float] | None = None, estimate: bool = True) -> None:
+        self.degree = degree
+        self.coefficients = coefficients
+        self.estimate = estimate
+
+    def n_params(self) -> int:
+        return (int(self.degree) + 1) // 2
+
+    def _powers(self) -> np.ndarray:
+        return 2 * np.arange(self.n_params()) + 1
+
+    def initial_params(self, x: np.ndarray) -> np.ndarray:
+        _check_degree(self.degree, 1, "OddPolynomial")
+        if self.coefficients is not None:
+            c = np.asarray(self.coefficients, dtype=float).reshape(-1)
+            if c.size != self.n_params():
+                raise ValueError(f"OddPolynomial of degree {self.degree} needs {self.n_params()} coefficients, got "
+                                 f"{c.size}")
+            return c.copy()
+        c = np.zeros(self.n_params())
+        c[0] = 1.0
+        return c
+
+    def linear_in_params(self) -> bool:
+        return True
+
+    def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return self.dp(x, p) @ np.asarray(p, dtype=float)
+
+    def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        k = self._powers()
+        return (x[:, None] ** (k - 1) * k) @ np.asarray(p, dtype=float)
+
+    def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return _x(x)[:, None] ** self._powers()
+
+    def scaled_params(self, p: np.ndarray, c: float) -> np.ndarray | None:
+        return np.asarray(p, dtype=float) * c
+
+    def casadi(self, x: Any, p: np.ndarray) -> Any:
+        out = 0.0
+        x2 = x * x
+        for c in np.asarray(p, dtype=float)[::-1]:  # Horner in x^2, times x
+            out = out * x2 + float(c)
+        return out * x
+
+
+@_register
+class EvenPolynomial(StaticNonlinearity):
+    """``g(x) = sum_k c_k (x - centre)^(2k)`` for k = 0..degree/2: an even function about a given centre (a
+    square-law detector, a sensor that sees only the magnitude of its signal); starts as ``(x - centre)^2`` unless
+    ``coefficients``. An even block cannot start as the identity: see ``n_restarts`` of the estimator.
+
+    Parameters
+    ----------
+    degree : int
+        Even degree (>= 2; 2 gives ``c_0 + c_1 (x - centre)^2``).
+    coefficients : sequence of float, optional
+        ``degree / 2 + 1`` starting coefficients.
+    centre : float
+        The symmetry point, held fixed (normalised signals: 0).
+    estimate : bool
+        Estimate the coefficients.
+    """
+
+    even = True
+
+    def __init__(self, degree: int = 2, coefficients: Sequence[float] | None = None, centre: float = 0.0,
+                 estimate: bool = True) -> None:
+        self.degree = degree
+        self.coefficients = coefficients
+        self.centre = centre
+        self.estimate = estimate
+
+    def n_params(self) -> int:
+        return int(self.degree) // 2 + 1
+
+    def _powers(self) -> np.ndarray:
+        return 2 * np.arange(self.n_params())
+
+    def initial_params(self, x: np.ndarray) -> np.ndarray:
+        _check_degree(self.degree, 0, "EvenPolynomial")
+        if not np.isfinite(float(self.centre)):
+            raise ValueError(f"EvenPolynomial: centre must be finite, got {self.centre!r}")
+        if self.coefficients is not None:
+            c = np.asarray(self.coefficients, dtype=float).reshape(-1)
+            if c.size != self.n_params():
+                raise ValueError(f"EvenPolynomial of degree {self.degree} needs {self.n_params()} coefficients, "
+                                 f"got {c.size}")
+            return c.copy()
+        c = np.zeros(self.n_params())
+        c[1] = 1.0
+        return c
+
+    def linear_in_params(self) -> bool:
+        return True
+
+    def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return self.dp(x, p) @ np.asarray(p, dtype=float)
+
+    def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        z = _x(x) - float(self.centre)
+        k = self._powers()[1:]
+        return (z[:, None] ** (k - 1) * k) @ np.asarray(p, dtype=float)[1:]
+
+    def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        z = _x(x) - float(self.centre)
+        return z[:, None] ** self._powers()
+
+    def casadi(self, x: Any, p: np.ndarray) -> Any:
+        z = x - float(self.centre)
+        z2 = z * z
+        out = 0.0
+        for c in np.asarray(p, dtype=float)[::-1]:  # Horner in (x - centre)^2
+            out = out * z2 + float(c)
+        return out
+
+
+@_register
+class AbsoluteValue(StaticNonlinearity):
+    """``g(x) = |x - centre| + offset``: a sensor that ignores the sign of what it measures (a pulse-counting speed
+    sensor: Wigren and Schoukens' coupled electric drives, output ``|x_1|``). An even block: see ``n_restarts`` of
+    the estimator. At ``x = centre`` the derivative is taken as 0 (a subgradient).
+
+    Parameters
+    ----------
+    centre, offset : float
+        Starting values (or fixed values when ``estimate`` is False).
+    estimate : bool
+        Estimate centre and offset.
+    """
+
+    even = True
+
+    def __init__(self, centre: float = 0.0, offset: float = 0.0, estimate: bool = True) -> None:
+        self.centre = centre
+        self.offset = offset
+        self.estimate = estimate
+
+    def n_params(self) -> int:
+        return 2
+
+    def initial_params(self, x: np.ndarray) -> np.ndarray:
+        p = np.array([float(self.centre), float(self.offset)])
+        if not np.all(np.isfinite(p)):
+            raise ValueError(f"AbsoluteValue: centre and offset must be finite, got {p.tolist()}")
+        return p
+
+    def fit_params(self, x: np.ndarray, target: np.ndarray) -> np.ndarray | None:
+        """The offset that best maps ``x`` to ``target`` for the given centre (the offset enters linearly)."""
+        x, target = _x(x), _x(target)
+        c = float(self.centre)
+        return np.array([c, float(np.mean(target - np.abs(x - c)))])
+
+    def random_params(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Centre drawn about the median of the data (SD: half the data's SD), offset 0."""
+        x = _x(x)
+        return np.array([float(np.median(x)) + 0.5 * float(np.std(x)) * float(rng.standard_normal()), 0.0])
+
+    def value(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.abs(_x(x) - p[0]) + p[1]
+
+    def dx(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.sign(_x(x) - p[0])
+
+    def dp(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        x = _x(x)
+        return np.column_stack([-np.sign(x - p[0]), np.ones_like(x)])
+
+    def casadi(self, x: Any, p: np.ndarray) -> Any:
+        import casadi as ca
+
+        return ca.fabs(x - float(p[0])) + float(p[1])

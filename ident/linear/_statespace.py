@@ -16,14 +16,12 @@ Initial state (documented choice, used by every linear model):
 """
 from __future__ import annotations
 
-import inspect
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ident.base import as_2d, as_vector, check_is_fitted, check_not_constant, check_same_length
-from ident.io import load_model, save_model
+from ident.base import BaseEstimator, as_2d, as_vector, check_is_fitted, check_not_constant, check_same_length
+from ident.linear._kernels import sensitivity_outputs, state_sequence
 
 
 def data_columns(u: Any, y: Any, model: str = "model") -> tuple[int, int]:
@@ -71,14 +69,8 @@ def simulate_ss(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, u: n
                 x0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Free-run simulation; returns (y, x) with y of shape (N, ny) and states x of shape (N + 1, n)."""
     n = A.shape[0]
-    N = u.shape[0]
     x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).reshape(n)
-    bu = u @ B.T
-    X = np.empty((N + 1, n))
-    for t in range(N):
-        X[t] = x
-        x = A @ x + bu[t]
-    X[N] = x
+    X = state_sequence(np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(u @ B.T, dtype=float), x)
     return X[:-1] @ C.T + u @ D.T, X
 
 
@@ -100,6 +92,45 @@ def stabilize(A: np.ndarray, max_radius: float = 0.999) -> np.ndarray:
     lam = lam.copy()
     lam[bad] = max_radius**2 / np.conj(lam[bad])
     return np.real(V @ np.diag(lam) @ np.linalg.inv(V))
+
+
+def random_stable_poles(n: int, rng: np.random.Generator, max_time_constant: float) -> np.ndarray:
+    """``n`` random discrete-time poles for a random stable start: complex-conjugate pairs (and one real pole when
+    ``n`` is odd) with time constants ``tau`` log-uniform between 1 and ``max_time_constant`` samples (radius
+    ``exp(-1 / tau)``), the pairs at angles uniform in [0, pi/2) (at most four samples per period)."""
+    tau_max = max(float(max_time_constant), 1.5)
+    poles: list[complex] = []
+    while len(poles) < n:
+        r = float(np.exp(-1.0 / np.exp(rng.uniform(0.0, np.log(tau_max)))))
+        if n - len(poles) == 1:
+            poles.append(complex(r, 0.0))
+        else:
+            angle = float(rng.uniform(0.0, np.pi / 2))
+            poles += [r * np.exp(1j * angle), r * np.exp(-1j * angle)]
+    return np.asarray(poles)
+
+
+def random_stable_poly(n: int, rng: np.random.Generator, max_time_constant: float) -> np.ndarray:
+    """A random monic polynomial in q^-1 of order ``n`` with the poles of :func:`random_stable_poles`."""
+    return np.real(np.poly(random_stable_poles(n, rng, max_time_constant))) if n else np.ones(1)
+
+
+def random_stable_ss(n: int, rng: np.random.Generator, max_time_constant: float) -> np.ndarray:
+    """A random stable real ``A`` (n x n) with the poles of :func:`random_stable_poles`, in real block-diagonal form
+    (2 x 2 rotation-scaling blocks for the complex pairs) turned by a random orthogonal similarity."""
+    lam = random_stable_poles(n, rng, max_time_constant)
+    A = np.zeros((n, n))
+    k = 0
+    while k < n:
+        if abs(lam[k].imag) > 0 and k + 1 < n:
+            a, b = lam[k].real, abs(lam[k].imag)
+            A[k:k + 2, k:k + 2] = [[a, -b], [b, a]]
+            k += 2
+        else:
+            A[k, k] = lam[k].real
+            k += 1
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    return Q @ A @ Q.T
 
 
 def ss_sensitivities(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, K: np.ndarray | None,
@@ -125,11 +156,8 @@ def ss_sensitivities(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,
     Bbar = B - K @ D if use_k else B
     # the simulation of the predictor: inputs u and (if K) the measured y
     drive = u @ Bbar.T + (y @ K.T if use_k else 0.0)
-    X = np.empty((N, n))
-    x = x0.copy()
-    for t in range(N):
-        X[t] = x
-        x = Abar @ x + drive[t]
+    X = state_sequence(np.ascontiguousarray(Abar, dtype=float), np.ascontiguousarray(drive, dtype=float),
+                       np.asarray(x0, dtype=float))[:-1]
     yhat = X @ C.T + u @ D.T
     sizes = [("A", n * n), ("B", n * nu), ("C", ny * n)]
     if free.get("D"):
@@ -162,15 +190,12 @@ def ss_sensitivities(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,
     S = np.zeros((n, p))
     if "x0" in off:
         S[:, off["x0"]:off["x0"] + n] = np.eye(n)
-    J = np.empty((N, ny, p))
-    for t in range(N):
-        J[t] = C @ S
-        S = Abar @ S + G[t]
+    J = sensitivity_outputs(np.ascontiguousarray(Abar, dtype=float), np.ascontiguousarray(C, dtype=float), G, S)
     J += H
     return yhat, J
 
 
-class LinearStateSpaceModel:
+class LinearStateSpaceModel(BaseEstimator):
     """Base of all linear models: subclasses set ``A_, B_, C_, D_`` (and ``K_``, the innovation gain used by
     :meth:`predict_k_step`; zero for output-error models) in ``fit``.
 
@@ -179,16 +204,6 @@ class LinearStateSpaceModel:
 
     _saved_arrays: tuple[str, ...] = ()
     _saved_meta: tuple[str, ...] = ()
-
-    # -------------------------------------------------------------------------------------- parameters
-    def get_params(self) -> dict[str, Any]:
-        """Constructor arguments as stored (scikit-learn convention)."""
-        sig = inspect.signature(type(self).__init__)
-        return {k: getattr(self, k) for k in sig.parameters if k != "self"}
-
-    def __repr__(self) -> str:
-        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
-        return f"{type(self).__name__}({args})"
 
     @property
     def n_states_(self) -> int:
@@ -343,18 +358,6 @@ class LinearStateSpaceModel:
             setattr(obj, k, v)
         for k, v in meta.get("learned", {}).items():
             setattr(obj, k, v)
-        return obj
-
-    def save(self, path: str | Path) -> Path:
-        """Save as ``<path>.json`` + ``<path>.npz`` (see :mod:`ident.io`); returns the JSON path."""
-        return save_model(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> LinearStateSpaceModel:
-        """Load a model saved with :meth:`save`."""
-        obj = load_model(path)
-        if not isinstance(obj, cls):
-            raise TypeError(f"{path} holds a {type(obj).__name__}, not a {cls.__name__}")
         return obj
 
 

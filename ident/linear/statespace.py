@@ -49,7 +49,3 @@ class StateSpaceModel(LinearStateSpaceModel):
                 raise ValueError(f"{name} contains NaN or inf")
         self.A_, self.B_, self.C_, self.D_, self.K_ = A, B, C, D, K
         return self
-
-    def get_params(self) -> dict[str, Any]:
-        return {k: np.asarray(getattr(self, k)).tolist() if getattr(self, k) is not None else None
-                for k in ("A", "B", "C", "D", "K")}

@@ -1,5 +1,5 @@
 """Recursive prediction error method (RPEM) on restricted black-box nonlinear ODE models (thesis Papers I-III)."""
-from ident.rpem.estimator import RecursivePEM
+from ident.rpem.estimator import AUTO_SETTINGS, OUTPUT_FUNCTIONS, RecursivePEM
 from ident.rpem.parametric import ParametricRPEM
 from ident.rpem.regressors import (
     PAPER2_TERMS,
@@ -11,6 +11,8 @@ from ident.rpem.regressors import (
 from ident.rpem.selection import backward_elimination, forward_selection
 
 __all__ = [
+    "AUTO_SETTINGS",
+    "OUTPUT_FUNCTIONS",
     "PAPER2_TERMS",
     "SCR_PAPER3_LINEAR_TERMS",
     "SCR_PAPER3_TERMS",

@@ -27,7 +27,8 @@ def kalman_options(options: dict | None) -> dict:
 
 
 def ekf_initial_theta(structure: ChainStructure, cfg: np.ndarray, WS: np.ndarray, WH: np.ndarray, y: np.ndarray,
-                      theta0: np.ndarray, options: dict | None = None) -> np.ndarray:
+                      theta0: np.ndarray, options: dict | None = None, eta: np.ndarray | None = None,
+                      x0: np.ndarray | None = None) -> np.ndarray:
     """Run the augmented-state EKF over the data and return its final parameter estimate.
 
     Parameters
@@ -45,6 +46,10 @@ def ekf_initial_theta(structure: ChainStructure, cfg: np.ndarray, WS: np.ndarray
     options : dict, optional
         ``p0`` (initial covariance scale), ``q_state``, ``q_theta`` (process noise variances), ``r``
         (measurement noise variance), ``n_passes`` (passes over the data, each restarting the state).
+    eta : numpy.ndarray, optional
+        Parameters of the static output function (held fixed; ``cfg`` names the function). None: identity.
+    x0 : numpy.ndarray, optional
+        Initial state of every pass (default ``(y(0), 0, ...)`` per chain).
     """
     opts = kalman_options(options)
     N, p, d = structure.n_states, structure.n_params, structure.n_outputs
@@ -56,27 +61,39 @@ def ekf_initial_theta(structure: ChainStructure, cfg: np.ndarray, WS: np.ndarray
     for _ in range(int(opts["n_passes"])):
         z = np.zeros(N + p)
         z[np.arange(d) * structure.n_chain] = y[0]
+        if x0 is not None:
+            z[:N] = x0
         z[N:] = theta
         Pz = float(opts["p0"]) * np.eye(N + p)
-        kernel.ekf_run(WS, WH, y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, structure.owner, structure.n_chain, X)
+        kernel.ekf_run(WS, WH, y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, structure.owner, structure.n_chain, X,
+                       _eta(eta))
         if not np.all(np.isfinite(z[N:])):
             break
         theta = z[N:].copy()
     return theta
 
 
+def _eta(eta: np.ndarray | None) -> np.ndarray:
+    return np.zeros(1) if eta is None or np.size(eta) == 0 else np.ascontiguousarray(eta, dtype=float).ravel()
+
+
 def ekf_state_estimates(structure: ChainStructure, cfg: np.ndarray, WS: np.ndarray, WH: np.ndarray,
-                        y: np.ndarray, theta: np.ndarray, q_state: float, r: float) -> np.ndarray:
-    """Filtered states ``x(t | t)`` of the model with theta fixed (state-only EKF), shape ``(T, N)``."""
+                        y: np.ndarray, theta: np.ndarray, q_state: float, r: float,
+                        eta: np.ndarray | None = None, x0: np.ndarray | None = None) -> np.ndarray:
+    """Filtered states ``x(t | t)`` of the model with theta fixed (state-only EKF), shape ``(T, N)``; the filter
+    starts at ``x0`` (default ``(y(0), 0, ...)`` per chain)."""
     N, p, d = structure.n_states, structure.n_params, structure.n_outputs
     fvar, fpow, nf = structure.factor_arrays()
     z = np.zeros(N + p)
     z[np.arange(d) * structure.n_chain] = y[0]
+    if x0 is not None:
+        z[:N] = x0
     z[N:] = theta
     Pz = np.zeros((N + p, N + p))
     Pz[:N, :N] = q_state * np.eye(N)
     Q = np.zeros((N + p, N + p))
     Q[:N, :N] = q_state * np.eye(N)
     X = np.empty((len(y), N))
-    kernel.ekf_run(WS, WH, y, z, Pz, Q, r * np.eye(d), cfg, fvar, fpow, nf, structure.owner, structure.n_chain, X)
+    kernel.ekf_run(WS, WH, y, z, Pz, Q, r * np.eye(d), cfg, fvar, fpow, nf, structure.owner, structure.n_chain, X,
+                   _eta(eta))
     return X

@@ -17,7 +17,8 @@ The step of the discretised model, with ``Ts = alpha T`` the scaled sampling per
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from scr_env.jit import njit  # numba.njit with the project's cache directory (never site-packages)
 
 EULER = 0
 MIDPOINT = 1
@@ -28,7 +29,8 @@ ST_LAMBDA = 1  # forgetting factor lambda(t)
 ST_STARTED = 2  # 1 once x(0) has been set from the first output sample
 ST_REJECTED = 3  # number of candidate updates refused by the projection onto DM
 ST_COUNT = 4  # number of samples processed
-N_ST = 5
+ST_BOUND_HITS = 5  # number of samples at which a state was clipped to the state bound (or reset from NaN)
+N_ST = 6
 
 # Indices into the float configuration vector.
 CF_TS = 0  # scaled sampling period alpha * T
@@ -39,7 +41,15 @@ CF_MARGIN = 4  # delta: eigenvalues of the continuous-time linearisation must ha
 CF_XMAX = 5  # bound on |x|
 CF_SMAX = 6  # bound on |dx/dtheta|
 CF_UPDATE = 7  # 1: run the parameter update, 0: only propagate (evaluation)
-N_CF = 8
+CF_SUBSTEPS = 8  # integration sub-steps per sample (1: the thesis' single Euler / midpoint step)
+CF_OUT_TYPE = 9  # static output function y = h(x1, eta): OUT_*
+CF_OUT_Q = 10  # parameters eta per output
+N_CF = 11
+
+OUT_IDENTITY = 0  # y = x1
+OUT_POLYNOMIAL = 1  # y = eta_0 + x1 + eta_2 x1^2 + ... + eta_q x1^q   (q = degree)
+OUT_ABS = 2  # y = eta_0 + |x1|
+OUT_SATURATION = 3  # y = min(max(x1, eta_0), eta_1)
 
 
 @njit(cache=True, inline="always")
@@ -82,7 +92,7 @@ def _regressors(xv, w, fvar, fpow, nf, n_states, phi, dphi):
 def _rhs(xv, w, theta, fvar, fpow, nf, owner, n_chain, F, J, G, phi, dphi):
     """F = dx/dt, J = dF/dx (N x N) and G = dF/dtheta (N x p) of the chain model."""
     N = xv.shape[0]
-    p = theta.shape[0]
+    p = fvar.shape[0]  # the terms; theta may carry output parameters after them
     _regressors(xv, w, fvar, fpow, nf, N, phi, dphi)
     for i in range(N):
         for c in range(N):
@@ -102,17 +112,12 @@ def _rhs(xv, w, theta, fvar, fpow, nf, owner, n_chain, F, J, G, phi, dphi):
             J[last, c] += theta[j] * dphi[j, c]
 
 
-@njit(cache=True)
-def model_step(xv, ws, wh, theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, need_b, work):
-    """One step of the discretised model from ``x`` with inputs ``ws`` (start) and ``wh`` (half step).
-
-    Writes ``x_next``, ``A = dx_next/dx`` and, if ``need_b``, ``B = dx_next/dtheta``.
-    ``work`` is a tuple of scratch arrays (see :func:`_make_work`).
-    """
-    F0, J0, G0, F1, J1, G1, phi, dphi, xbar, M = work
+@njit(cache=True, inline="always")
+def _single_step(xv, ws, wh, theta, cfg, Ts, fvar, fpow, nf, owner, n_chain, x_next, A, B, need_b, work):
+    """One Euler / midpoint step of length ``Ts`` (see :func:`model_step`)."""
+    F0, J0, G0, F1, J1, G1, phi, dphi, xbar, M = work[:10]
     N = xv.shape[0]
-    p = theta.shape[0]
-    Ts = cfg[CF_TS]
+    p = fvar.shape[0]  # the terms; theta may carry output parameters after them
     _rhs(xv, ws, theta, fvar, fpow, nf, owner, n_chain, F0, J0, G0, phi, dphi)
     if cfg[CF_METHOD] == EULER:
         for i in range(N):
@@ -149,9 +154,122 @@ def model_step(xv, ws, wh, theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A
 
 
 @njit(cache=True)
-def _make_work(N, p):
+def model_step(xv, ws, wh, theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, need_b, work):
+    """One sample step of the discretised model from ``x`` with inputs ``ws`` (start) and ``wh`` (half step).
+
+    Writes ``x_next``, ``A = dx_next/dx`` and, if ``need_b``, ``B = dx_next/dtheta``; ``theta`` holds the
+    right-hand side's parameters only. ``work`` is a tuple of scratch arrays (see :func:`_make_work`); after the
+    call ``work[1]`` holds ``dF/dx`` at ``(x, ws)``, which the projection onto DM tests.
+
+    With ``m = cfg[CF_SUBSTEPS] > 1`` the sample interval is integrated in m steps of ``Ts / m``; the input at a
+    sub-step is interpolated linearly between the sample's start value ``ws`` and its end value ``2 wh - ws`` (so
+    a held input stays held), and ``A``, ``B`` are the chained derivatives of the m steps. ``m = 1`` is exactly
+    the single step of ALGORITHMS.md.
+    """
+    m = int(cfg[CF_SUBSTEPS])
+    if m <= 1:
+        _single_step(xv, ws, wh, theta, cfg, cfg[CF_TS], fvar, fpow, nf, owner, n_chain, x_next, A, B, need_b, work)
+        return
+    N = xv.shape[0]
+    p = fvar.shape[0]  # the terms; theta may carry output parameters after them
+    nw = ws.shape[0]
+    half = nw // 2
+    h = cfg[CF_TS] / m
+    xc, A1, B1, Aacc, Bacc, wsj, whj, J0keep = work[10:18]
+    for i in range(N):
+        xc[i] = xv[i]
+        for c in range(N):
+            Aacc[i, c] = 1.0 if i == c else 0.0
+        if need_b:
+            for j in range(p):
+                Bacc[i, j] = 0.0
+    for sub in range(m):
+        f0 = sub / m
+        f1 = (sub + 0.5) / m
+        for k in range(nw):
+            end = 2.0 * wh[k] - ws[k]
+            if k < half:
+                wsj[k] = ws[k] + f0 * (end - ws[k])
+                whj[k] = ws[k] + f1 * (end - ws[k])
+            else:  # derivatives: the start row's at the sample start, the half-step row's afterwards
+                wsj[k] = ws[k] if sub == 0 else wh[k]
+                whj[k] = wh[k]
+        _single_step(xc, wsj, whj, theta, cfg, h, fvar, fpow, nf, owner, n_chain, x_next, A1, B1, need_b, work)
+        if sub == 0:
+            for i in range(N):
+                for c in range(N):
+                    J0keep[i, c] = work[1][i, c]
+        # chain rule: Aacc <- A1 Aacc, Bacc <- A1 Bacc + B1
+        for i in range(N):
+            for c in range(N):
+                acc = 0.0
+                for k in range(N):
+                    acc += A1[i, k] * Aacc[k, c]
+                A[i, c] = acc
+            if need_b:
+                for j in range(p):
+                    acc = B1[i, j]
+                    for k in range(N):
+                        acc += A1[i, k] * Bacc[k, j]
+                    B[i, j] = acc
+        for i in range(N):
+            xc[i] = x_next[i]
+            for c in range(N):
+                Aacc[i, c] = A[i, c]
+            if need_b:
+                for j in range(p):
+                    Bacc[i, j] = B[i, j]
+    for i in range(N):
+        for c in range(N):
+            work[1][i, c] = J0keep[i, c]
+
+
+@njit(cache=True)
+def _make_work(N, p, nw):
     return (np.empty(N), np.empty((N, N)), np.empty((N, p)), np.empty(N), np.empty((N, N)), np.empty((N, p)),
-            np.empty(p), np.empty((p, N)), np.empty(N), np.empty((N, N)))
+            np.empty(p), np.empty((p, N)), np.empty(N), np.empty((N, N)),
+            np.empty(N), np.empty((N, N)), np.empty((N, p)), np.empty((N, N)), np.empty((N, p)), np.empty(nw),
+            np.empty(nw), np.empty((N, N)))
+
+
+@njit(cache=True)
+def output_value(x1, eta, k, cfg, dh_deta):
+    """Static output function ``h(x1, eta_k)`` of output k (``cfg[CF_OUT_TYPE]``): returns ``(h, dh/dx1)`` and
+    writes ``dh/deta_k`` (``cfg[CF_OUT_Q]`` values) into ``dh_deta``."""
+    typ = int(cfg[CF_OUT_TYPE])
+    q = int(cfg[CF_OUT_Q])
+    if typ == OUT_IDENTITY:
+        return x1, 1.0
+    b = k * q
+    if typ == OUT_POLYNOMIAL:
+        y = eta[b] + x1
+        d = 1.0
+        dh_deta[0] = 1.0
+        prev = x1
+        for i in range(2, q + 1):
+            cur = prev * x1
+            y += eta[b + i - 1] * cur
+            d += i * eta[b + i - 1] * prev
+            dh_deta[i - 1] = cur
+            prev = cur
+        return y, d
+    if typ == OUT_ABS:
+        dh_deta[0] = 1.0
+        if x1 >= 0.0:
+            return eta[b] + x1, 1.0
+        return eta[b] - x1, -1.0
+    # OUT_SATURATION
+    lo = eta[b]
+    hi = eta[b + 1]
+    dh_deta[0] = 0.0
+    dh_deta[1] = 0.0
+    if x1 < lo:
+        dh_deta[0] = 1.0
+        return lo, 0.0
+    if x1 > hi:
+        dh_deta[1] = 1.0
+        return hi, 0.0
+    return x1, 1.0
 
 
 @njit(cache=True)
@@ -305,6 +423,22 @@ def _inv_small(M, out):
 
 
 @njit(cache=True)
+def _start_state(xv, S, Y, t, eta, cfg, n_chain):
+    """x(0) = (y(0), 0, ...) per chain (y(0) less the output offset for the polynomial and |x| outputs), S = 0."""
+    N = xv.shape[0]
+    d = Y.shape[1]
+    typ = int(cfg[CF_OUT_TYPE])
+    q = int(cfg[CF_OUT_Q])
+    for i in range(N):
+        xv[i] = 0.0
+        for j in range(S.shape[1]):
+            S[i, j] = 0.0
+    for k in range(d):
+        off = eta[k * q] if (typ == OUT_POLYNOMIAL or typ == OUT_ABS) else 0.0
+        xv[k * n_chain] = Y[t, k] - off
+
+
+@njit(cache=True)
 def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, nf, owner, n_chain, Yhat):
     """Run the RPEM recursion over ``len(Y)`` samples, updating the estimator state in place.
 
@@ -313,21 +447,25 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
     WS, WH : (T, 2m) arrays
         Inputs ``(u, u')`` for the step *into* sample t, at the step start and at the half step.
     Y : (T, d) measured outputs.
-    theta, P, Lam, xv, S, st : estimator state (modified in place). ``P`` is the inverse of the
-        unnormalised Hessian ``R(t) / gamma(t)``.
+    theta, P, Lam, xv, S, st : estimator state (modified in place). ``theta`` holds the right-hand side's
+        parameters (as many as terms, ``fvar.shape[0]``) followed by the output functions' parameters eta
+        (``cfg[CF_OUT_Q]`` per output). ``P`` is the inverse of the unnormalised Hessian ``R(t) / gamma(t)``
+        over all of them; ``S = dx/dtheta`` covers the right-hand side's parameters.
     cfg : float configuration (``CF_*``).
-    y_lo, y_hi : output saturation limits per output.
+    y_lo, y_hi : output saturation limits per output (applied after the output function).
     Yhat : (T, d) output buffer for the one-step predictions ``yhat(t | theta(t-1))``.
     """
     T = Y.shape[0]
     d = Y.shape[1]
     N = xv.shape[0]
+    pf = fvar.shape[0]
     p = theta.shape[0]
-    work = _make_work(N, p)
+    q = int(cfg[CF_OUT_Q])
+    work = _make_work(N, pf, WS.shape[1])
     x_next = np.empty(N)
     A = np.empty((N, N))
-    B = np.empty((N, p))
-    S_new = np.empty((N, p))
+    B = np.empty((N, pf))
+    S_new = np.empty((N, pf))
     psi = np.empty((p, d))
     eps = np.empty(d)
     Ppsi = np.empty((p, d))
@@ -337,39 +475,54 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
     theta_c = np.empty(p)
     A_c = np.empty((N, N))
     B_dummy = np.empty((1, 1))
+    dh_eta = np.zeros(max(q, 1))
+    eta = theta[pf:]
+    eta_c = theta_c[pf:]
     xmax = cfg[CF_XMAX]
     smax = cfg[CF_SMAX]
+    typ = int(cfg[CF_OUT_TYPE])
     for t in range(T):
         if st[ST_STARTED] == 0.0:
-            for i in range(N):
-                xv[i] = 0.0
-                for j in range(p):
-                    S[i, j] = 0.0
-            for k in range(d):
-                xv[k * n_chain] = Y[t, k]
+            _start_state(xv, S, Y, t, eta, cfg, n_chain)
             st[ST_STARTED] = 1.0
         else:
             model_step(xv, WS[t], WH[t], theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, True, work)
             for i in range(N):
-                for j in range(p):
+                for j in range(pf):
                     acc = B[i, j]
                     for c in range(N):
                         acc += A[i, c] * S[c, j]
                     S_new[i, j] = _clip(acc, smax)
+            hit = False
             for i in range(N):
                 xv[i] = _clip(x_next[i], xmax)
                 if not np.isfinite(xv[i]):
                     xv[i] = 0.0
-                for j in range(p):
+                    hit = True
+                elif x_next[i] > xmax or x_next[i] < -xmax:
+                    hit = True
+                for j in range(pf):
                     S[i, j] = S_new[i, j] if np.isfinite(S_new[i, j]) else 0.0
+            if hit:
+                st[ST_BOUND_HITS] += 1.0
         for k in range(d):
             x1 = xv[k * n_chain]
-            active = x1 <= y_lo[k] or x1 >= y_hi[k]
-            yh = min(max(x1, y_lo[k]), y_hi[k])
+            if typ == OUT_IDENTITY:
+                yk, dh = x1, 1.0
+            else:
+                yk, dh = output_value(x1, eta, k, cfg, dh_eta)
+            active = yk <= y_lo[k] or yk >= y_hi[k]
+            yh = min(max(yk, y_lo[k]), y_hi[k])
             Yhat[t, k] = yh
             eps[k] = Y[t, k] - yh
-            for j in range(p):
-                psi[j, k] = 0.0 if active else S[k * n_chain, j]
+            for j in range(pf):
+                psi[j, k] = 0.0 if active else dh * S[k * n_chain, j]
+            if typ != OUT_IDENTITY:
+                for j in range(pf, p):
+                    psi[j, k] = 0.0
+            if typ != OUT_IDENTITY and not active:
+                for r in range(q):
+                    psi[pf + k * q + r, k] = dh_eta[r]
         st[ST_COUNT] += 1.0
         if cfg[CF_UPDATE] == 0.0:
             continue
@@ -419,6 +572,10 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
             theta_c[j] = acc
             if not np.isfinite(acc):
                 ok = False
+        if ok and typ == OUT_SATURATION:
+            for k in range(d):
+                if not eta_c[k * q] < eta_c[k * q + 1]:
+                    ok = False
         if ok:
             # Projection onto DM: the continuous-time linearisation at the current point must have its
             # eigenvalues left of -delta, and the discretised step must be stable (work[1] holds J(x, u)).
@@ -433,26 +590,41 @@ def rpem_run(WS, WH, Y, theta, P, Lam, xv, S, st, cfg, y_lo, y_hi, fvar, fpow, n
 
 
 @njit(cache=True)
-def simulate(WS, WH, theta, x0, cfg, y_lo, y_hi, fvar, fpow, nf, owner, n_chain, d, Yhat, X):
-    """Free-run simulation from ``x0``: ``X[t]`` is the state at sample t, ``Yhat[t]`` its output."""
+def simulate(WS, WH, theta, eta, x0, cfg, y_lo, y_hi, fvar, fpow, nf, owner, n_chain, d, Yhat, X):
+    """Free-run simulation from ``x0``: ``X[t]`` is the state at sample t, ``Yhat[t]`` its output. ``theta``: the
+    right-hand side's parameters, ``eta``: the output functions'. Returns the number of samples at which a state
+    was clipped to the state bound."""
     T = WS.shape[0]
     N = x0.shape[0]
     p = theta.shape[0]
-    work = _make_work(N, p)
+    work = _make_work(N, p, WS.shape[1])
     xv = x0.copy()
     x_next = np.empty(N)
     A = np.empty((N, N))
     B = np.empty((1, 1))
+    dh_eta = np.zeros(max(int(cfg[CF_OUT_Q]), 1))
     xmax = cfg[CF_XMAX]
+    hits = 0
     for t in range(T):
         if t > 0:
             model_step(xv, WS[t], WH[t], theta, cfg, fvar, fpow, nf, owner, n_chain, x_next, A, B, False, work)
+            hit = False
             for i in range(N):
-                xv[i] = _clip(x_next[i], xmax)
+                v = x_next[i]
+                if not np.isfinite(v):
+                    v = xmax if v > 0 else (-xmax if v < 0 else 0.0)
+                    hit = True
+                elif v > xmax or v < -xmax:
+                    hit = True
+                xv[i] = _clip(v, xmax)
+            if hit:
+                hits += 1
         for i in range(N):
             X[t, i] = xv[i]
         for k in range(d):
-            Yhat[t, k] = min(max(xv[k * n_chain], y_lo[k]), y_hi[k])
+            yk, _ = output_value(xv[k * n_chain], eta, k, cfg, dh_eta)
+            Yhat[t, k] = min(max(yk, y_lo[k]), y_hi[k])
+    return hits
 
 
 @njit(cache=True)
@@ -474,19 +646,20 @@ def _sandwich(F, P, Q, tmp):
 
 
 @njit(cache=True)
-def ekf_run(WS, WH, Y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, owner, n_chain, X):
+def ekf_run(WS, WH, Y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, owner, n_chain, X, eta):
     """Extended Kalman filter on the state augmented with theta, ``z = (x, theta)`` (Brus and Wigren 2006).
 
     theta is modelled as a random walk with the covariance in the lower block of ``Q``; with that block zero and
     the theta block of ``Pz`` zero, theta stays fixed and this is a plain state filter (used for k-step
-    prediction). ``X[t]`` receives the filtered state ``x(t | t)``. ``z`` and ``Pz`` are updated in place.
+    prediction). Output k observes ``h(x_{k n}, eta_k)`` (the output function, with ``eta`` fixed). ``X[t]``
+    receives the filtered state ``x(t | t)``. ``z`` and ``Pz`` are updated in place.
     """
     T = Y.shape[0]
     d = Y.shape[1]
     nz = z.shape[0]
     N = X.shape[1]
     p = nz - N
-    work = _make_work(N, p)
+    work = _make_work(N, p, WS.shape[1])
     x_next = np.empty(N)
     A = np.empty((N, N))
     B = np.empty((N, p))
@@ -495,6 +668,9 @@ def ekf_run(WS, WH, Y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, owner, n_chain, X):
     Sm = np.empty((d, d))
     Si = np.empty((d, d))
     K = np.empty((nz, d))
+    hv = np.empty(d)
+    dh = np.empty(d)
+    dh_eta = np.zeros(max(int(cfg[CF_OUT_Q]), 1))
     xmax = cfg[CF_XMAX]
     for t in range(T):
         if t > 0:
@@ -509,26 +685,28 @@ def ekf_run(WS, WH, Y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, owner, n_chain, X):
             for i in range(N):
                 z[i] = _clip(x_next[i], xmax)
             _sandwich(Fz, Pz, Q, tmp)
-        # Measurement update: output k observes state k * n_chain.
+        # Measurement update: output k observes h(state k * n_chain).
+        for k in range(d):
+            hv[k], dh[k] = output_value(z[k * n_chain], eta, k, cfg, dh_eta)
         for a in range(d):
             for b in range(d):
-                Sm[a, b] = Pz[a * n_chain, b * n_chain] + Rm[a, b]
+                Sm[a, b] = Pz[a * n_chain, b * n_chain] * dh[a] * dh[b] + Rm[a, b]
         if _inv_small(Sm, Si):
             for i in range(nz):
                 for k in range(d):
                     acc = 0.0
                     for a in range(d):
-                        acc += Pz[i, a * n_chain] * Si[a, k]
+                        acc += Pz[i, a * n_chain] * dh[a] * Si[a, k]
                     K[i, k] = acc
             for k in range(d):
-                e = Y[t, k] - z[k * n_chain]
+                e = Y[t, k] - hv[k]
                 for i in range(nz):
                     z[i] += K[i, k] * e
             KH = np.zeros((nz, nz))
             for i in range(nz):
                 for k in range(d):
                     for c in range(nz):
-                        KH[i, c] += K[i, k] * Pz[k * n_chain, c]
+                        KH[i, c] += K[i, k] * dh[k] * Pz[k * n_chain, c]
             Pz[:, :] = Pz - KH
             Pz[:, :] = 0.5 * (Pz + Pz.T)
         for i in range(N):
@@ -538,15 +716,16 @@ def ekf_run(WS, WH, Y, z, Pz, Q, Rm, cfg, fvar, fpow, nf, owner, n_chain, X):
 
 
 @njit(cache=True)
-def k_step_predict(WS, WH, Xf, theta, k, cfg, y_lo, y_hi, fvar, fpow, nf, owner, n_chain, d, Yfree, Yhat):
+def k_step_predict(WS, WH, Xf, theta, eta, k, cfg, y_lo, y_hi, fvar, fpow, nf, owner, n_chain, d, Yfree, Yhat):
     """``Yhat[t] = yhat(t | t - k)``: k model steps from the filtered state ``Xf[t - k]``; ``Yfree`` for t < k."""
     T = WS.shape[0]
     N = Xf.shape[1]
     p = theta.shape[0]
-    work = _make_work(N, p)
+    work = _make_work(N, p, WS.shape[1])
     x_next = np.empty(N)
     A = np.empty((N, N))
     B = np.empty((1, 1))
+    dh_eta = np.zeros(max(int(cfg[CF_OUT_Q]), 1))
     xmax = cfg[CF_XMAX]
     for t in range(T):
         if t < k:
@@ -559,4 +738,5 @@ def k_step_predict(WS, WH, Xf, theta, k, cfg, y_lo, y_hi, fvar, fpow, nf, owner,
             for i in range(N):
                 xv[i] = _clip(x_next[i], xmax)
         for c in range(d):
-            Yhat[t, c] = min(max(xv[c * n_chain], y_lo[c]), y_hi[c])
+            yk, _ = output_value(xv[c * n_chain], eta, c, cfg, dh_eta)
+            Yhat[t, c] = min(max(yk, y_lo[c]), y_hi[c])

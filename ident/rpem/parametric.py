@@ -151,6 +151,27 @@ class ParametricRPEM:
         self.sensitivity_ = S_next
         return yhat
 
+    def reset_state(self, x0: Sequence[float]) -> ParametricRPEM:
+        """Restart the model state at ``x0`` with zero sensitivities, keeping the estimate, R, Lambda and the gain:
+        the plant restarted (a new episode from a known state), its parameters did not change."""
+        if not hasattr(self, "_jac"):
+            raise RuntimeError("call start(x0) before reset_state()")
+        x = np.asarray(x0, dtype=float).ravel().copy()
+        if x.shape != self.state_.shape or not np.all(np.isfinite(x)):
+            raise ValueError(f"x0 must be {self.state_.size} finite numbers, got {np.asarray(x0).tolist()}")
+        self.state_ = x
+        self.sensitivity_ = np.zeros_like(self.sensitivity_)
+        return self
+
+    def clip_params(self, lower: float | Sequence[float], upper: float | Sequence[float]) -> np.ndarray:
+        """Clip the parameter estimate (all parameters) to [``lower``, ``upper``] in place and return it: a
+        projection onto a box that lets the other parameters move on, where the recursion's ``p_bounds`` reject a
+        whole update that leaves the box."""
+        if not hasattr(self, "_jac"):
+            raise RuntimeError("call start(x0) before clip_params()")
+        self.params_[:] = np.clip(self.params_, lower, upper)
+        return self.params_
+
     @property
     def free_params_(self) -> np.ndarray:
         """Current estimate of the free parameters."""

@@ -95,7 +95,7 @@ def parse_terms(terms: Sequence[str], n_states: int, n_inputs: int) -> np.ndarra
         raise ValueError("the term list is empty")
     rows = np.array([parse_term(t, n_states, n_inputs) for t in terms], dtype=np.int64)
     seen: dict[tuple[int, ...], str] = {}
-    for t, r in zip(terms, rows):
+    for t, r in zip(terms, rows, strict=False):
         key = tuple(int(v) for v in r)
         if key in seen:
             raise ValueError(f"terms {seen[key]!r} and {t!r} are the same monomial")
@@ -107,7 +107,7 @@ def format_term(row: np.ndarray, n_states: int, n_inputs: int) -> str:
     """Inverse of :func:`parse_term` (canonical spelling)."""
     names = [f"x{i + 1}" for i in range(n_states)] + [f"u{j + 1}" for j in range(n_inputs)]
     names += [f"u{j + 1}'" for j in range(n_inputs)]
-    parts = [n if int(k) == 1 else f"{n}^{int(k)}" for n, k in zip(names, row) if k > 0]
+    parts = [n if int(k) == 1 else f"{n}^{int(k)}" for n, k in zip(names, row, strict=False) if k > 0]
     return "*".join(parts) if parts else "1"
 
 
@@ -151,6 +151,6 @@ def polynomial_terms(
     combos.sort(key=lambda c: (sum(c), [-v for v in c]))
     terms = []
     for c in combos:
-        parts = [n if k == 1 else f"{n}^{k}" for n, k in zip(names, c) if k > 0]
+        parts = [n if k == 1 else f"{n}^{k}" for n, k in zip(names, c, strict=False) if k > 0]
         terms.append("*".join(parts) if parts else "1")
     return terms

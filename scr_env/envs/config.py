@@ -12,7 +12,16 @@ import numpy as np
 
 from scr_env.cycles import ExhaustTrace, available_cycles, load_cycle
 from scr_env.envs.core import NH3_SENSOR_HIGH, OBS_BASE, OBS_BASE_HIGH, OBS_BASE_LOW, RewardWeights
-from scr_env.params import CatalystParams, DosingParams, SensorParams, aged, catalyst_preset
+from scr_env.params import (
+    CatalystParams,
+    DosingParams,
+    SensorParams,
+    aged,
+    catalyst_preset,
+    check_age_h,
+    check_age_range,
+    randomised,
+)
 
 ACTION_MODES = ("normalized", "physical")
 O2_FRACTION = 0.10  # mole fraction of O2 at the SCR inlet [chosen: the lab reference; the kinetics are at most
@@ -38,10 +47,22 @@ class EnvConfig:
     randomize: float
     initial_coverage: float
     random_cycle_duration_s: float
+    age_h_range: tuple[float, float] | None = None
 
     @property
     def effective_catalyst(self) -> CatalystParams:
         return aged(self.catalyst, self.ageing) if self.ageing > 0 else self.catalyst
+
+    @property
+    def randomizes(self) -> bool:
+        """Whether each episode draws its own catalyst (``randomize`` > 0 or an ``age_h`` range)."""
+        return self.randomize > 0 or self.age_h_range is not None
+
+    def episode_catalyst(self, rng: np.random.Generator) -> CatalystParams:
+        """The catalyst of a new episode: domain-randomised by ``randomize`` and, with an ``age_h`` range, at a
+        uniformly drawn age (:func:`scr_env.params.randomised`)."""
+        cat = randomised(self.catalyst, rng, self.randomize, age_h_range=self.age_h_range)
+        return aged(cat, self.ageing) if self.ageing > 0 else cat
 
     @property
     def obs_names(self) -> tuple[str, ...]:
@@ -123,11 +144,15 @@ def make_config(cycle: Any = "whtc", catalyst: Any = "cu_zeolite", dt: float = 0
                 sensor_noise: bool = True, reward_weights: Any = None, action_mode: str = "normalized",
                 nh3_sensor: bool = False, privileged: bool = False, cold_start: bool = False,
                 randomize: float = 0.0, initial_coverage: float = 0.0,
-                random_cycle_duration_s: float = 1800.0) -> EnvConfig:
+                random_cycle_duration_s: float = 1800.0, age_h: Any = 0.0) -> EnvConfig:
     """Check every environment argument and return an :class:`EnvConfig` (ValueError naming the argument).
 
     Numbers must be numbers (not strings or bools) and flags must be bools (``True``/``False`` or numpy bools): a
-    string such as ``nh3_sensor="no"`` raises instead of counting as True."""
+    string such as ``nh3_sensor="no"`` raises instead of counting as True.
+
+    ``age_h`` is the catalyst's hydrothermal ageing in hours (0 to 16, the CLEERS samples:
+    :data:`scr_env.params.AGEING_TABLE`), or a pair ``(lo, hi)`` to draw it uniformly per episode (domain
+    randomisation of ageing). ``ageing`` is the older severity in [0, 1] (16 h at 1); give one or the other."""
     sensor_noise = flag("sensor_noise", sensor_noise)
     nh3_sensor = flag("nh3_sensor", nh3_sensor)
     privileged = flag("privileged", privileged)
@@ -147,12 +172,24 @@ def make_config(cycle: Any = "whtc", catalyst: Any = "cu_zeolite", dt: float = 0
     except ValueError as e:
         raise ValueError(f"catalyst: {e}") from None
     ageing = _number("ageing", ageing, 0.0, 1.0)
+    age_h_range = None
+    if isinstance(age_h, (tuple, list)):
+        age_h_range = check_age_range(tuple(age_h), "age_h")
+        if ageing > 0:
+            raise ValueError("give either ageing (a severity) or age_h (hours), not both")
+        cat = cat.replace(age_h=age_h_range[0])
+    else:
+        age = check_age_h(age_h, "age_h")
+        if age > 0:
+            if ageing > 0:
+                raise ValueError("give either ageing (a severity) or age_h (hours), not both")
+            cat = cat.replace(age_h=age)
     dosing = DosingParams() if dosing is None else dosing
     if not isinstance(dosing, DosingParams):
-        raise ValueError(f"dosing must be a DosingParams, got {type(dosing).__name__}")
+        raise ValueError(f"dosing must be a DosingParams, got {type(dosing).__name__}")  # noqa: TRY004 (contract)
     sensors = SensorParams() if sensors is None else sensors
     if not isinstance(sensors, SensorParams):
-        raise ValueError(f"sensors must be a SensorParams, got {type(sensors).__name__}")
+        raise ValueError(f"sensors must be a SensorParams, got {type(sensors).__name__}")  # noqa: TRY004
     if not sensor_noise:
         sensors = sensors.noiseless()
     if reward_weights is None:
@@ -174,4 +211,4 @@ def make_config(cycle: Any = "whtc", catalyst: Any = "cu_zeolite", dt: float = 0
     return EnvConfig(cycle=cycle, catalyst=cat, dt=dt, ageing=ageing, dosing=dosing, sensors=sensors,
                      reward_weights=weights, action_mode=action_mode, nh3_sensor=nh3_sensor,
                      privileged=privileged, cold_start=cold_start, randomize=randomize,
-                     initial_coverage=initial_coverage, random_cycle_duration_s=duration)
+                     initial_coverage=initial_coverage, random_cycle_duration_s=duration, age_h_range=age_h_range)

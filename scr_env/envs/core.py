@@ -10,25 +10,45 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 
-from scr_env.constants import NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
 from scr_env.cycles import ExhaustTrace
+from scr_env.envs.kpis import (  # noqa: F401  (the reward and KPI names, re-exported where they were defined)
+    A_ADBLUE_G,
+    A_ENGINE_NOX_G,
+    A_N2O_G,
+    A_N_IN_MOL,
+    A_N_OUT_MOL,
+    A_NH3_G,
+    A_NH3_PEAK_PPM,
+    A_NH3_PPM_S,
+    A_STEPS,
+    A_STORED0_MOL,
+    A_TAILPIPE_NOX_G,
+    A_TIME_S,
+    A_UREA_N_MOL,
+    A_WORK_KWH,
+    N_ACC,
+    N_TERMS,
+    REWARD_TERMS,
+    RewardWeights,
+    account_step,
+    episode_kpis,
+)
+from scr_env.jit import njit
+from scr_env.params import P, pack
 from scr_env.physics import kernel as K
 
+if TYPE_CHECKING:
+    from scr_env.envs.config import EnvConfig
+
 # columns of the per-step drive table built from an ExhaustTrace (kernel inputs plus engine power)
-D_FLOW, D_TIN, D_NOX, D_NO2F, D_POWER = range(5)
-
-# reward terms, in the order of the ``terms`` array and of ``info``
-REWARD_TERMS = ("nox_cost", "nh3_cost", "adblue_cost")
-
-# episode accumulators (per plant)
-(A_ENGINE_NOX_G, A_TAILPIPE_NOX_G, A_NH3_PPM_S, A_NH3_PEAK_PPM, A_ADBLUE_G, A_TIME_S, A_WORK_KWH, A_N_IN_MOL,
- A_N_OUT_MOL, A_STORED0_MOL, A_NH3_G, A_N2O_G, A_UREA_N_MOL, A_STEPS) = range(14)
-N_ACC = 14
+DRIVE_FIELDS = ("exhaust_flow_mol_s", "inlet_temperature_k", "inlet_nox_ppm", "inlet_no2_fraction",
+                "engine_power_kw", "o2_fraction")
+D_FLOW, D_TIN, D_NOX, D_NO2F, D_POWER, D_O2 = range(len(DRIVE_FIELDS))
 
 # observation layout
 OBS_BASE = ("upstream_nox_ppm", "inlet_temperature_k", "exhaust_flow_mol_s", "tailpipe_nox_sensor_ppm",
@@ -36,30 +56,7 @@ OBS_BASE = ("upstream_nox_ppm", "inlet_temperature_k", "exhaust_flow_mol_s", "ta
 OBS_BASE_LOW = (0.0, 0.0, 0.0, 0.0, -1.0)
 OBS_BASE_HIGH = (10000.0, 1500.0, 100.0, 10000.0, 1.0)
 NH3_SENSOR_HIGH = 10000.0
-
-
-@dataclass(frozen=True)
-class RewardWeights:
-    """Weights of the default economic reward, in grams of AdBlue equivalent per gram of pollutant.
-
-    reward per step = -(nox * tailpipe NOx [g, as NO2] + nh3 * NH3 slip [g] + adblue * AdBlue [g]).
-    Defaults [chosen]: one gram of tailpipe NOx costs as much as 20 g AdBlue (ANR = 1 needs about 2 g AdBlue per g
-    NOx, so dosing pays clearly), NH3 slip 60 g per g (a slip above a few ppm dominates the cost, as the Euro VI
-    10 ppm mean limit demands), AdBlue 1.
-    """
-
-    nox: float = 20.0
-    nh3: float = 60.0
-    adblue: float = 1.0
-
-    def __post_init__(self) -> None:
-        for name in ("nox", "nh3", "adblue"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ValueError(f"reward_weights.{name} must be a non-negative finite number, got {v!r}")
-
-    def as_array(self) -> np.ndarray:
-        return np.array([self.nox, self.nh3, self.adblue], dtype=np.float64)
+_P_SITES = P["sites_per_cell_mol"]
 
 
 def drive_table(trace: ExhaustTrace, o2_fraction: float) -> np.ndarray:
@@ -71,40 +68,10 @@ def drive_table(trace: ExhaustTrace, o2_fraction: float) -> np.ndarray:
 
 # Per plant, everything is indexed [b, j] on the (B, ...) blocks, never through row views, and compiled without
 # reference counting (see the note at kernel._NO_REFCOUNT).
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True, inline="always")
+@njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), inline="always")
 def _post_one(b, inputs, power_kw, dt, out, action_norm, weights, terms, reward, acc, obs, nh3_sensor, privileged,
               theta):
-    flow = inputs[b, K.I_FLOW]
-    adblue = min(max(inputs[b, K.I_ADBLUE], 0.0), 1e9)
-    nh3_ppm = out[b, K.O_NH3]
-    n2o_ppm = out[b, K.O_N2O]
-    nox_tail_mol_s = (out[b, K.O_NO] + out[b, K.O_NO2]) * 1e-6 * flow
-    nh3_tail_mol_s = nh3_ppm * 1e-6 * flow
-    nox_g = nox_tail_mol_s * NO2_MOLAR_MASS_G_MOL * dt
-    nh3_g = nh3_tail_mol_s * NH3_MOLAR_MASS_G_MOL * dt
-    adblue_g = adblue * dt
-    t0 = -weights[b, 0] * nox_g
-    t1 = -weights[b, 1] * nh3_g
-    t2 = -weights[b, 2] * adblue_g
-    terms[b, 0] = t0
-    terms[b, 1] = t1
-    terms[b, 2] = t2
-    reward[b] = t0 + t1 + t2
-    nox_in_mol_s = inputs[b, K.I_NOX] * 1e-6 * flow
-    acc[b, A_ENGINE_NOX_G] += nox_in_mol_s * NO2_MOLAR_MASS_G_MOL * dt
-    acc[b, A_TAILPIPE_NOX_G] += nox_g
-    acc[b, A_NH3_PPM_S] += nh3_ppm * dt
-    acc[b, A_NH3_PEAK_PPM] = max(acc[b, A_NH3_PEAK_PPM], nh3_ppm)
-    acc[b, A_ADBLUE_G] += adblue_g
-    acc[b, A_TIME_S] += dt
-    acc[b, A_WORK_KWH] += max(power_kw[b], 0.0) * dt / 3600.0
-    acc[b, A_N_IN_MOL] += (nox_in_mol_s + out[b, K.O_NH3_INJ]) * dt
-    acc[b, A_N_OUT_MOL] += (nox_tail_mol_s + nh3_tail_mol_s + 2.0 * n2o_ppm * 1e-6 * flow
-                            + 2.0 * out[b, K.O_N2]) * dt
-    acc[b, A_NH3_G] += nh3_g
-    acc[b, A_N2O_G] += n2o_ppm * 1e-6 * flow * 44.013 * dt  # g N2O, M = 44.013 g/mol
-    acc[b, A_UREA_N_MOL] += out[b, K.O_UREA_N] * dt
-    acc[b, A_STEPS] += 1.0
+    account_step(b, inputs, power_kw, dt, out, weights, terms, reward, acc)
     obs[b, 0] = min(out[b, K.O_UPSTREAM_NOX], 10000.0)
     obs[b, 1] = min(max(out[b, K.O_TIN_SENSOR], 0.0), 1500.0)
     obs[b, 2] = min(out[b, K.O_FLOW_EST], 100.0)
@@ -119,27 +86,35 @@ def _post_one(b, inputs, power_kw, dt, out, action_norm, weights, terms, reward,
             obs[b, i + j] = min(max(theta[b, j], 0.0), 1.0)
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True, inline="always")
+_N_INPUTS = len(K.INPUT_FIELDS)
+_N_OUTPUTS = len(K.OUTPUT_FIELDS)
+
+
+@njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), inline="always")
 def _blocks(buf, lay):
-    """The column blocks of the buffer, as (B, width) views (free without reference counting)."""
+    """The column blocks of the buffer, as (B, width) views (free without reference counting); order of
+    :data:`_BLOCKS`."""
     n = lay[0]
     return (buf[:, lay[1]:lay[1] + n], buf[:, lay[2]:lay[2] + n], buf[:, lay[3]:lay[3] + K.N_SENSOR_STATES],
-            buf[:, lay[4]:lay[4] + 6], buf[:, lay[5]], buf[:, lay[6]:lay[6] + 25], buf[:, lay[7]:lay[7] + K.N_AUX],
-            buf[:, lay[8]:lay[8] + K.N_NOISE], buf[:, lay[9]:lay[9] + 15], buf[:, lay[10]],
-            buf[:, lay[11]:lay[11] + 3], buf[:, lay[12]:lay[12] + 3], buf[:, lay[13]], buf[:, lay[14]:lay[14] + N_ACC])
+            buf[:, lay[4]:lay[4] + _N_INPUTS], buf[:, lay[5]], buf[:, lay[6]:lay[6] + K.N_PACKED],
+            buf[:, lay[7]:lay[7] + K.N_AUX], buf[:, lay[8]:lay[8] + K.N_NOISE], buf[:, lay[9]:lay[9] + _N_OUTPUTS],
+            buf[:, lay[10]], buf[:, lay[11]:lay[11] + N_TERMS], buf[:, lay[12]:lay[12] + N_TERMS], buf[:, lay[13]],
+            buf[:, lay[14]:lay[14] + N_ACC])
 
 
-@numba.njit(**K._NO_REFCOUNT)
+# The parallel loops call it with np.int64(b): a prange index is unsigned, and numba would compile a second copy of
+# the whole plant step for it (seconds of a cold start).
+@njit(**K._NO_REFCOUNT)
 def _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
     # few arguments on purpose: each array argument is a 7-word struct passed on the stack
     (theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward,
      acc) = _blocks(buf, lay)
     r = row_idx[b]
-    inputs[b, 0] = drive[r, D_FLOW]
-    inputs[b, 1] = drive[r, D_TIN]
-    inputs[b, 2] = drive[r, D_NOX]
-    inputs[b, 3] = drive[r, D_NO2F]
-    inputs[b, 5] = drive[r, 5]
+    inputs[b, K.I_FLOW] = drive[r, D_FLOW]
+    inputs[b, K.I_TIN] = drive[r, D_TIN]
+    inputs[b, K.I_NOX] = drive[r, D_NOX]
+    inputs[b, K.I_NO2F] = drive[r, D_NO2F]
+    inputs[b, K.I_O2] = drive[r, D_O2]
     power[b] = drive[r, D_POWER]
     m = noise_idx[b]
     for i in range(K.N_NOISE):
@@ -149,21 +124,21 @@ def _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
               theta)
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True)
+@njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH))
 def _env_step_serial(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
     for b in range(buf.shape[0]):
         _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True, parallel=True)
+@njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), parallel=True)
 def _env_step_parallel(buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
     for b in numba.prange(buf.shape[0]):
-        _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
+        _one(np.int64(b), buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt)
 
 
 # fastmath=False stated: numba would otherwise compile it with its caller's fast-math flags, and contracted
 # floating point in the ziggurat's accept tests could part from numpy's draws
-@numba.njit(nogil=True, fastmath=False, cache=True)
+@njit(nogil=True, fastmath=False)
 def standard_normal_fill(rng, out):
     """``rng.standard_normal(out=out)`` for a C-contiguous ``out``, in compiled code: numba implements numpy's
     ziggurat on the same bit generator, so the values and the generator state afterwards are numpy's (checked by a
@@ -174,7 +149,7 @@ def standard_normal_fill(rng, out):
 
 
 # The vector environment's per-step bookkeeping, compiled: numpy would make a dozen temporaries of B elements.
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True)
+@njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH))
 def apply_actions(actions, normalized, max_rate_g_s, buf, col_adblue, col_action, rate_out):
     """Clip a batch of actions (shape (B,)) and write the AdBlue rate [g/s] (to the buffer column ``col_adblue`` and
     ``rate_out``) and the normalised action (to ``col_action``). Returns the number of non-finite actions; if there
@@ -200,16 +175,24 @@ def apply_actions(actions, normalized, max_rate_g_s, buf, col_adblue, col_action
     return 0
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True)
-def vector_outputs(buf, lay, k, length, info, step_index, truncated):
+@njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH))
+def vector_outputs(buf, lay, k, length, info, step_index, truncated, skip):
     """After a step: advance the step counters ``k``, set ``truncated`` (k >= length) and ``step_index`` (= k), and
-    fill ``info`` rows 0-5 with nox, nh3 and adblue cost, tailpipe NOx and NH3 [ppm] and the reward. Returns whether
-    any plant's cycle ended."""
-    out = buf[:, lay[9]:lay[9] + 15]
-    terms = buf[:, lay[12]:lay[12] + 3]
+    fill ``info`` rows 0-5 with nox, nh3 and adblue cost, tailpipe NOx and NH3 [ppm] and the reward. Plants with
+    ``skip[b]`` did not step (their autoreset step): counters kept, not truncated, info rows 0. Returns whether any
+    plant's cycle ended."""
+    out = buf[:, lay[9]:lay[9] + _N_OUTPUTS]
+    terms = buf[:, lay[12]:lay[12] + N_TERMS]
     reward = buf[:, lay[13]]
     ended = False
     for b in range(buf.shape[0]):
+        if skip[b]:
+            step_index[b] = k[b]
+            truncated[b] = False
+            for r in range(6):
+                info[r, b] = 0.0
+            info[6, b] = 0.0
+            continue
         kb = k[b] + 1
         k[b] = kb
         step_index[b] = kb
@@ -225,7 +208,7 @@ def vector_outputs(buf, lay, k, length, info, step_index, truncated):
     return ended
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True)
+@njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH))
 def _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, rate_out):
     """Actions into the buffer, drive rows ``base + k``, sensor noise drawn; returns the number of non-finite
     actions (then nothing is written and no noise is drawn)."""
@@ -239,35 +222,38 @@ def _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, 
 
 
 # One compiled call per vector-env step (each numba call costs a few microseconds of argument checks, and the
-# Python glue between calls as much again): actions, noise, the plants, the bookkeeping. Returns -(number of
-# non-finite actions) if there are any (nothing done), else 1 if a plant's cycle ended, else 0.
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True)
+# Python glue between calls as much again): actions, noise, the plants, the bookkeeping. Plants with skip[b] are not
+# stepped (Gymnasium's NEXT_STEP autoreset: they were just reset). Returns -(number of non-finite actions) if there
+# are any (nothing done), else 1 if a plant's cycle ended, else 0.
+@njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH))
 def vector_step_serial(actions, normalized, max_rate_g_s, buf, lay, obs, drive, base, k, length, row, rng, noise,
-                       noise_idx, dt, info, step_index, truncated):
+                       noise_idx, dt, info, step_index, truncated, skip):
     bad = _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, info[6])
     if bad > 0:
         return -bad
     for b in range(buf.shape[0]):
-        _one(b, buf, lay, obs, drive, row, noise, noise_idx, dt)
-    return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated) else 0
+        if not skip[b]:
+            _one(b, buf, lay, obs, drive, row, noise, noise_idx, dt)
+    return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated, skip) else 0
 
 
-@numba.njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), cache=True, parallel=True)
+@njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), parallel=True)
 def vector_step_parallel(actions, normalized, max_rate_g_s, buf, lay, obs, drive, base, k, length, row, rng, noise,
-                         noise_idx, dt, info, step_index, truncated):
+                         noise_idx, dt, info, step_index, truncated, skip):
     bad = _vector_prologue(actions, normalized, max_rate_g_s, buf, lay, base, k, row, rng, noise, info[6])
     if bad > 0:
         return -bad
     for b in numba.prange(buf.shape[0]):
-        _one(b, buf, lay, obs, drive, row, noise, noise_idx, dt)
-    return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated) else 0
+        if not skip[b]:
+            _one(np.int64(b), buf, lay, obs, drive, row, noise, noise_idx, dt)
+    return 1 if vector_outputs(buf, lay, k, length, info, step_index, truncated, skip) else 0
 
 
 # column blocks of the PlantBatch buffer: (name, width or None for n_cells)
 _BLOCKS = (("theta", None), ("temperature_k", None), ("sensor_state", K.N_SENSOR_STATES),
-           ("inputs", len(K.INPUT_FIELDS)), ("power_kw", 1), ("cat_params", 25), ("aux_params", K.N_AUX),
-           ("noise", K.N_NOISE), ("out", len(K.OUTPUT_FIELDS)), ("action_norm", 1), ("weights", 3), ("terms", 3),
-           ("reward", 1), ("acc", N_ACC))
+           ("inputs", _N_INPUTS), ("power_kw", 1), ("cat_params", K.N_PACKED), ("aux_params", K.N_AUX),
+           ("noise", K.N_NOISE), ("out", _N_OUTPUTS), ("action_norm", 1), ("weights", N_TERMS),
+           ("terms", N_TERMS), ("reward", 1), ("acc", N_ACC))
 
 
 class _ThreadingChooser:
@@ -281,6 +267,10 @@ class _ThreadingChooser:
     ``PROBE_EVERY`` steps (the first call of each is skipped: it may include JIT compilation or cache loading).
     The estimate follows a faster time at once and a slower one gradually, so one slow outlier (a descheduled
     thread) does not keep the step on the slower variant for many probes.
+
+    The serial variant runs first: its machine code is mostly the per-plant step, which any step needs, so the first
+    step compiles little else; the threaded variant is compiled when it is first probed (the third step). With one
+    numba thread (``NUMBA_NUM_THREADS=1``) there is nothing to choose: the chooser is not used.
     """
 
     PROBE_EVERY = 64  # steps between re-timings of the slower variant [chosen: costs ~1 % when it is 2x slower]
@@ -293,10 +283,10 @@ class _ThreadingChooser:
 
     def pick(self) -> int:
         """1 for the threaded step, 0 for the serial one."""
-        if self.calls[1] < 2:
-            return 1
         if self.calls[0] < 2:
             return 0
+        if self.calls[1] < 2:
+            return 1
         best = 1 if self.mean_s[1] <= self.mean_s[0] else 0
         self.since_probe += 1
         if self.since_probe >= self.PROBE_EVERY:
@@ -323,18 +313,19 @@ class PlantBatch:
         self.n = n
         offsets = []
         col = 0
-        for name, width in _BLOCKS:
+        for _name, width in _BLOCKS:
             offsets.append(col)
             col += n_cells if width is None else width
         self.buf = np.zeros((n, col))
         self.layout = np.array([n_cells, *offsets, int(bool(nh3_sensor)), int(bool(privileged))], dtype=np.int64)
-        for (name, width), off in zip(_BLOCKS, offsets):
+        for (name, width), off in zip(_BLOCKS, offsets, strict=True):
             w = n_cells if width is None else width
             setattr(self, name, self.buf[:, off] if width == 1 else self.buf[:, off:off + w])
         self.obs = np.zeros((n, obs_dim), dtype=np.float32)
         self.nh3_sensor = bool(nh3_sensor)
         self.privileged = bool(privileged)
-        self._chooser = _ThreadingChooser() if n >= K.PARALLEL_MIN_BATCH else None
+        threads = numba.config.NUMBA_NUM_THREADS > 1
+        self._chooser = _ThreadingChooser() if n >= K.PARALLEL_MIN_BATCH and threads else None
         self._noise_rows = np.arange(n, dtype=np.int64)
         self.col_adblue = offsets[3] + K.I_ADBLUE
         self.col_action = offsets[9]
@@ -347,7 +338,10 @@ class PlantBatch:
         normalised action must already be in ``inputs[:, I_ADBLUE]`` and ``action_norm``."""
         chooser = self._chooser
         if chooser is None:
-            _env_step_serial(self.buf, self.layout, self.obs, drive, row_idx, noise_tab, noise_idx, dt)
+            if self.n == 1:  # the single environment: the per-plant step itself (one compiled function less)
+                _one(0, self.buf, self.layout, self.obs, drive, row_idx, noise_tab, noise_idx, dt)
+            else:
+                _env_step_serial(self.buf, self.layout, self.obs, drive, row_idx, noise_tab, noise_idx, dt)
             return
         mode = chooser.pick()
         start = time.perf_counter()
@@ -358,13 +352,14 @@ class PlantBatch:
     def vector_step(self, actions: np.ndarray, normalized: bool, max_rate_g_s: float, drive: np.ndarray,
                     base: np.ndarray, k: np.ndarray, length: np.ndarray, row: np.ndarray, rng: np.random.Generator,
                     noise: np.ndarray, dt: float, info: np.ndarray, step_index: np.ndarray,
-                    truncated: np.ndarray) -> int:
+                    truncated: np.ndarray, skip: np.ndarray) -> int:
         """The vector environment's step in one compiled call (see :func:`vector_step_serial`): ``actions`` (B,)
         raw, plant b on drive row ``base[b] + k[b]`` (written to ``row``) and noise row b of ``noise`` (drawn from
-        ``rng``); advances ``k``; fills ``info`` (7, B), ``step_index`` and ``truncated``. Returns -(number of
-        non-finite actions) if any (nothing done), else 1 if a cycle ended, else 0."""
+        ``rng``); advances ``k``; fills ``info`` (7, B), ``step_index`` and ``truncated``; plants with ``skip[b]``
+        are left as they are. Returns -(number of non-finite actions) if any (nothing done), else 1 if a cycle
+        ended, else 0."""
         args = (actions, normalized, max_rate_g_s, self.buf, self.layout, self.obs, drive, base, k, length, row, rng,
-                noise, self._noise_rows, dt, info, step_index, truncated)
+                noise, self._noise_rows, dt, info, step_index, truncated, skip)
         chooser = self._chooser
         if chooser is None:
             return vector_step_serial(*args)
@@ -373,6 +368,30 @@ class PlantBatch:
         status = (vector_step_parallel if mode else vector_step_serial)(*args)
         chooser.record(mode, time.perf_counter() - start)
         return status
+
+    def start_episode(self, i: int, config: EnvConfig, rng: np.random.Generator, base_params: np.ndarray,
+                      first_row: np.ndarray, cold: bool, coverage: float) -> None:
+        """Begin an episode of plant ``i``: the one reset of the single and the vector environment.
+
+        The catalyst is ``base_params`` (packed), or with ``config.randomize`` or an ``age_h`` range a new draw from
+        ``rng`` (:meth:`EnvConfig.episode_catalyst`); every cell at NH3 coverage ``coverage`` and at ambient
+        temperature (``cold``) or at the inlet temperature of ``first_row`` (a row of
+        :func:`drive_table`); the sensors settled on that row's readings (no NH3), the accumulators at zero, and the
+        observation before the first step (previous action -1, no dosing).
+        """
+        if config.randomizes:
+            self.cat_params[i] = pack(config.episode_catalyst(rng))
+        else:
+            self.cat_params[i] = base_params
+        t0 = float(first_row[D_TIN])
+        nox0 = float(first_row[D_NOX])
+        no2f0 = float(first_row[D_NO2F])
+        self.theta[i] = coverage
+        self.temperature_k[i] = config.catalyst.ambient_temperature_k if cold else t0
+        self.sensor_state[i] = (nox0 * (1.0 - no2f0) + config.sensors.nox_sensor_no2_gain * nox0 * no2f0, 0.0, t0)
+        self.acc[i] = 0.0
+        self.acc[i, A_STORED0_MOL] = float(self.theta[i].sum() * self.cat_params[i, _P_SITES])
+        self.initial_observation(i, nox0, t0, float(first_row[D_FLOW]), -1.0)
 
     def initial_observation(self, b: int, upstream_nox_ppm: float, inlet_temperature_k: float, flow_mol_s: float,
                             action_norm: float) -> None:
@@ -389,30 +408,3 @@ class PlantBatch:
             i += 1
         if self.privileged:
             ob[i:i + self.theta.shape[1]] = np.clip(self.theta[b], 0.0, 1.0)
-
-
-def episode_kpis(acc: np.ndarray, stored_now_mol: float) -> dict[str, float]:
-    """The emission KPIs of one episode from its accumulator row (PHYSICS.md section 7)."""
-    engine_nox = float(acc[A_ENGINE_NOX_G])
-    tail_nox = float(acc[A_TAILPIPE_NOX_G])
-    work = float(acc[A_WORK_KWH])
-    time_s = float(acc[A_TIME_S])
-    n_in = float(acc[A_N_IN_MOL])
-    n_out = float(acc[A_N_OUT_MOL]) + (stored_now_mol - float(acc[A_STORED0_MOL]))
-    nan = float("nan")
-    return {
-        "nox_conversion": 1.0 - tail_nox / engine_nox if engine_nox > 0 else nan,
-        "engine_out_nox_g": engine_nox,
-        "tailpipe_nox_g": tail_nox,
-        "engine_out_nox_g_per_kwh": engine_nox / work if work > 0 else nan,
-        "tailpipe_nox_g_per_kwh": tail_nox / work if work > 0 else nan,
-        "mean_nh3_slip_ppm": float(acc[A_NH3_PPM_S]) / time_s if time_s > 0 else nan,
-        "peak_nh3_slip_ppm": float(acc[A_NH3_PEAK_PPM]),
-        "nh3_slip_g": float(acc[A_NH3_G]),
-        "n2o_g": float(acc[A_N2O_G]),
-        "adblue_g": float(acc[A_ADBLUE_G]),
-        "adblue_g_per_kwh": float(acc[A_ADBLUE_G]) / work if work > 0 else nan,
-        "engine_work_kwh": work,
-        "duration_s": time_s,
-        "nitrogen_balance_error": (n_in - n_out) / n_in if n_in > 0 else 0.0,
-    }

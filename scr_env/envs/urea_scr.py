@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -11,7 +11,7 @@ from gymnasium import spaces
 from scr_env.cycles import ExhaustTrace
 from scr_env.envs import core
 from scr_env.envs.config import O2_FRACTION, EnvConfig, flag, make_config, reset_coverage, reset_options
-from scr_env.params import pack, randomised
+from scr_env.params import pack
 from scr_env.physics import kernel as K
 
 RESET_OPTIONS = ("cold_start", "initial_coverage", "cycle_seed")
@@ -67,7 +67,7 @@ class UreaSCREnv(gym.Env):
 
     ## Rewards
     An economic cost in grams of AdBlue equivalent (weights ``reward_weights``, see
-    :class:`scr_env.envs.core.RewardWeights`): per step
+    :class:`scr_env.envs.kpis.RewardWeights`): per step
     ``r = -(20 * tailpipe NOx [g as NO2] + 60 * NH3 slip [g] + 1 * AdBlue [g])``. Each term is in ``info``
     (``nox_cost``, ``nh3_cost``, ``adblue_cost``, all <= 0).
 
@@ -84,7 +84,10 @@ class UreaSCREnv(gym.Env):
     Truncation at the end of the drive cycle (3600 steps for the WHTC at 0.5 s). The episode never terminates.
     At the truncating step ``info["episode_kpis"]`` holds ``nox_conversion``, ``engine_out_nox_g_per_kwh``,
     ``tailpipe_nox_g_per_kwh``, ``mean_nh3_slip_ppm``, ``peak_nh3_slip_ppm``, ``adblue_g``, ``engine_work_kwh`` and
-    more (see :func:`scr_env.envs.core.episode_kpis`). Stepping after truncation without ``reset`` raises.
+    more (see :func:`scr_env.envs.kpis.episode_kpis`). Stepping after truncation without ``reset`` raises. An episode
+    ended early by a wrapper (``gym.make(..., max_episode_steps=N)`` adds ``TimeLimit``) has its KPIs from
+    :meth:`episode_kpis` (``env.unwrapped.episode_kpis()``), or in ``info`` with the outermost wrapper
+    :class:`scr_env.wrappers.RecordEpisodeKPIs`.
 
     ## Arguments
     ``gymnasium.make("scr_env/UreaSCR-v0", **kwargs)`` with:
@@ -94,7 +97,8 @@ class UreaSCREnv(gym.Env):
     | cycle | "whtc" | "whtc", "whsc", "random" (new seeded cycle each reset), a CSV path, or an ExhaustTrace |
     | catalyst | "cu_zeolite" | preset name or :class:`~scr_env.params.CatalystParams` |
     | dt | 0.5 | control interval [s] (the thesis data: 0.5 s) |
-    | ageing | 0.0 | catalyst ageing severity in [0, 1] (:func:`scr_env.params.aged`) |
+    | age_h | 0.0 | catalyst hydrothermal ageing [h], 0-16 (the CLEERS samples), or (lo, hi) drawn per reset |
+    | ageing | 0.0 | older form: ageing severity in [0, 1] = age_h / 16 (:func:`scr_env.params.aged`) |
     | sensor_noise | True | False removes sensor noise (lags stay) |
     | sensors, dosing | defaults | :class:`~scr_env.params.SensorParams`, :class:`~scr_env.params.DosingParams` |
     | reward_weights | None | dict with keys nox, nh3, adblue |
@@ -113,7 +117,7 @@ class UreaSCREnv(gym.Env):
     * v0: initial version.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 4}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 4}
 
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -179,27 +183,13 @@ class UreaSCREnv(gym.Env):
         self._n = tr.n_steps
         self._noise = self.np_random.standard_normal((self._n, K.N_NOISE))
         b = self._batch
-        if cfg.randomize > 0:
-            from scr_env.params import aged
-
-            cat = randomised(cfg.catalyst, self.np_random, cfg.randomize)
-            b.cat_params[0] = pack(aged(cat, cfg.ageing) if cfg.ageing > 0 else cat)
-        else:
-            b.cat_params[0] = self._base_params
-        t0 = float(tr.scr_inlet_temperature_k[0])
-        b.theta[0] = coverage
-        b.temperature_k[0] = cfg.catalyst.ambient_temperature_k if cold else t0
-        nox0 = float(tr.nox_ppm[0])
-        no2f0 = float(tr.no2_fraction[0])
-        b.sensor_state[0] = (nox0 * (1.0 - no2f0) + cfg.sensors.nox_sensor_no2_gain * nox0 * no2f0, 0.0, t0)
-        b.acc[0] = 0.0
-        b.acc[0, core.A_STORED0_MOL] = float(b.theta[0].sum() * b.cat_params[0, 1])
-        b.initial_observation(0, nox0, t0, float(tr.exhaust_flow_mol_s[0]), self._to_norm(0.0))
+        b.start_episode(0, cfg, self.np_random, self._base_params, self._drive[0], cold, coverage)
         self._k = 0
         self._needs_reset = False
         self._history = []
         if self.render_mode is not None:
-            self._record(0.0, nox0, nox0, 0.0, 0.0, t0, coverage)
+            nox0 = float(tr.nox_ppm[0])
+            self._record(0.0, nox0, nox0, 0.0, 0.0, float(tr.scr_inlet_temperature_k[0]), coverage)
         return b.obs[0].copy(), {"cycle": tr.name, "n_steps": self._n, "dt": self.dt}
 
     def _to_norm(self, rate_g_s: float) -> float:
@@ -263,8 +253,20 @@ class UreaSCREnv(gym.Env):
                          info["tailpipe_nh3_ppm"], rate, float(self._drive[k, 1]), out[K.O_COV])
         if truncated:
             self._needs_reset = True
-            info["episode_kpis"] = core.episode_kpis(b.acc[0], float(out[K.O_STORED]))
+            info["episode_kpis"] = core.episode_kpis(b.acc[0], out[K.O_STORED])
         return b.obs[0].copy(), buf[0, b.col_reward], False, truncated, info
+
+    def episode_kpis(self) -> dict[str, float]:
+        """The KPIs of the current (or just ended) episode so far: what ``info["episode_kpis"]`` holds at the end
+        of the cycle, available after any step, e.g. when ``TimeLimit`` (``gym.make(..., max_episode_steps=N)``) or
+        the caller ends the episode early (see also :class:`scr_env.wrappers.RecordEpisodeKPIs`). RuntimeError
+        before the first ``reset``."""
+        if self.trace is None:
+            raise RuntimeError("episode_kpis() needs an episode: call reset() first")
+        b = self._batch
+        # NH3 stored now: the plant step's figure, or before the first step the initial one
+        stored = float(b.out[0, K.O_STORED]) if self._k > 0 else float(b.acc[0, core.A_STORED0_MOL])
+        return core.episode_kpis(b.acc[0], stored)
 
     # ------------------------------------------------------------------------------------------- introspection
     @property

@@ -1,20 +1,62 @@
 """The native vector environment: N catalysts stepped by one call of the compiled physics."""
 from __future__ import annotations
 
-from typing import Any
+import sys
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from scr_env.cycles import ExhaustTrace
+from scr_env.cycles import MAX_TRACE_SAMPLES, ExhaustTrace
 from scr_env.envs import core
 from scr_env.envs.config import O2_FRACTION, flag, make_config, reset_coverage, reset_options
-from scr_env.params import aged, pack, randomised
+from scr_env.params import pack
 from scr_env.physics import kernel as K
 
 RESET_OPTIONS = ("initial_coverage", "reset_mask")
+AUTORESET_MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+#: the adapter that makes this environment a stable-baselines3 VecEnv (the error for a raw one names it)
+SB3_ADAPTER_HINT = ("wrap it with control.rl.vec_env.GymVectorToSB3(venv) -- the environment made with "
+                    "autoreset_mode='same_step' -- or make it with control.rl.vec_env.make_sb3_vec_env(num_envs, "
+                    "...), which does both")
+
+
+def _autoreset_mode(value: Any) -> AutoresetMode:
+    """``value`` (an AutoresetMode or its name/value, any case) as one of :data:`AUTORESET_MODES`."""
+    if isinstance(value, AutoresetMode):
+        mode = value
+    elif isinstance(value, str):
+        key = value.strip().lower().replace("-", "_")
+        mode = next((m for m in AutoresetMode if key in (m.value.lower(), m.name.lower())), None)
+    else:
+        mode = None
+    if mode not in AUTORESET_MODES:
+        raise ValueError(f"autoreset_mode must be AutoresetMode.NEXT_STEP ('next_step', Gymnasium's default) or "
+                         f"AutoresetMode.SAME_STEP ('same_step'), got {value!r}")
+    return mode
+
+
+def _guard_against_raw_use_in_sb3() -> None:
+    """If stable-baselines3 is imported, make its ``isinstance(env, VecEnv)`` check (the first thing it does with an
+    environment) raise a TypeError naming the adapter when given a Gymnasium vector environment: SB3 would
+    otherwise wrap it as a single environment and fail with a message about OpenAI Gym. Installed once, by a class
+    that only answers that check (``abc`` consults the ``__subclasshook__`` of every subclass of ``VecEnv``)."""
+    module = sys.modules.get("stable_baselines3.common.vec_env")
+    if module is None or getattr(module, "_scr_env_guard", False):
+        return
+    from gymnasium.vector import VectorEnv as GymVectorEnv
+
+    class _GymnasiumVectorEnvGuard(module.VecEnv):  # never instantiated
+        @classmethod
+        def __subclasshook__(cls, subclass: type) -> Any:
+            if cls is _GymnasiumVectorEnvGuard and isinstance(subclass, type) and issubclass(subclass, GymVectorEnv):
+                raise TypeError(f"{subclass.__name__} is a Gymnasium vector environment, which stable-baselines3 "
+                                f"cannot use as it is: {SB3_ADAPTER_HINT}")
+            return NotImplemented
+
+    module._scr_env_guard = _GymnasiumVectorEnvGuard
 
 
 class UreaSCRVectorEnv(VectorEnv):
@@ -32,6 +74,8 @@ class UreaSCRVectorEnv(VectorEnv):
     | cycle | "whtc" | one cycle for all plants, or a sequence of ``num_envs`` cycles (names, paths, ExhaustTraces) |
     | random_offsets | False | start each episode at a random step of its cycle, so plants are not in lockstep |
     | random_cycle_pool | 32 | with cycle "random": size of the pool of seeded random cycles drawn from at each reset |
+    | autoreset_mode | "next_step" | Gymnasium's ``AutoresetMode.NEXT_STEP`` or ``SAME_STEP`` (or their names) |
+    | max_episode_steps | None | truncate every episode after this many steps (if the cycle has not ended before) |
 
     ``reset(options=...)`` takes None or a dict with the keys ``initial_coverage`` (a number in [0, 1], for the
     plants reset) and ``reset_mask``: Gymnasium's boolean array of shape ``(num_envs,)``, True for the plants to
@@ -42,18 +86,36 @@ class UreaSCRVectorEnv(VectorEnv):
     Actions: a float or int array of shape ``(num_envs, 1)`` or ``(num_envs,)``, clipped to the action space; NaN,
     inf, another shape or a non-real dtype (bool, complex, object, string) raise ``ValueError``.
 
-    Autoreset: ``AutoresetMode.SAME_STEP``. When a plant's cycle ends, the step returns its reset observation, with
-    ``infos["final_obs"][i]`` and ``infos["final_info"]`` (holding ``episode_kpis``) for the ended plants.
+    Autoreset (``metadata["autoreset_mode"]``, set by ``autoreset_mode``; Gymnasium's vector wrappers such as
+    ``NormalizeObservation`` need ``NEXT_STEP``, stable-baselines3's adapter
+    :class:`control.rl.vec_env.GymVectorToSB3` needs ``SAME_STEP``):
+
+    * ``NEXT_STEP`` (default): the step that ends a plant's episode returns its last observation, ``truncated[i]``
+      and ``infos["episode_kpis"]`` (masked by ``infos["_episode_kpis"]``); the next step ignores that plant's
+      action and returns its reset observation with reward 0 (``infos["cycle"]`` names its new cycle).
+    * ``SAME_STEP``: the step that ends an episode returns the reset observation at once, with
+      ``infos["final_obs"][i]`` and ``infos["final_info"]`` (holding ``episode_kpis``) for the ended plants.
+
     Per-step ``infos`` hold arrays ``nox_cost``, ``nh3_cost``, ``adblue_cost``, ``tailpipe_nox_ppm``,
-    ``tailpipe_nh3_ppm``, ``adblue_g_s`` and ``step_index``.
+    ``tailpipe_nh3_ppm``, ``adblue_g_s`` and ``step_index`` (masked out for a plant on its NEXT_STEP reset step).
+    :meth:`episode_kpis` gives the KPIs of every plant's episode so far at any time. Passing this environment to
+    stable-baselines3 as it is raises a ``TypeError`` that names the adapter.
     """
 
-    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, cycle: Any = "whtc", random_offsets: bool = False,
-                 random_cycle_pool: int = 32, render_mode: str | None = None, **kwargs: Any) -> None:
+                 random_cycle_pool: int = 32, render_mode: str | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, max_episode_steps: int | None = None,
+                 **kwargs: Any) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        self.autoreset_mode = _autoreset_mode(autoreset_mode)
+        self.metadata = {**type(self).metadata, "autoreset_mode": self.autoreset_mode}
+        if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(
+                max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
+            raise ValueError(f"max_episode_steps must be None or a positive integer, got {max_episode_steps!r}")
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         if render_mode is not None:
             raise ValueError("the vector environment does not render; use the single environment for plots")
         if isinstance(random_cycle_pool, bool) or not isinstance(random_cycle_pool, (int, np.integer)) \
@@ -74,6 +136,14 @@ class UreaSCRVectorEnv(VectorEnv):
                 self._configs[key] = make_config(cycle=c, **kwargs)
         self._cycle_keys = [self._key(c) for c in cycles]
         cfg = self._configs[self._cycle_keys[0]]
+        if any(c.cycle == "random" for c in self._configs.values()):
+            # the pool of random cycles shares one drive table: bounded as one trace is (scr_env.cycles)
+            rows = int(random_cycle_pool) * (cfg.random_cycle_duration_s / cfg.dt)
+            if not rows <= MAX_TRACE_SAMPLES:
+                raise ValueError(f"random_cycle_pool = {random_cycle_pool} random cycles of "
+                                 f"{cfg.random_cycle_duration_s:g} s at dt = {cfg.dt:g} s would hold {rows:,.0f} "
+                                 f"samples, more than MAX_TRACE_SAMPLES = {MAX_TRACE_SAMPLES:,}; use a smaller pool, "
+                                 f"shorter cycles or a larger dt")
         self.config = cfg
         self.dt = cfg.dt
         self.max_rate_g_s = cfg.dosing.max_rate_g_s
@@ -108,8 +178,11 @@ class UreaSCRVectorEnv(VectorEnv):
         self._ones = np.ones(n, dtype=bool)
         self._row = np.zeros(n, dtype=np.int64)
         self._noise = np.zeros((n, K.N_NOISE))
+        self._autoreset = np.zeros(n, dtype=bool)  # NEXT_STEP: plants to reset at the next step
+        self._no_skip = np.zeros(n, dtype=bool)
         self._needs_reset = True
         self._rng_ready = False
+        _guard_against_raw_use_in_sb3()
 
     @staticmethod
     def _key(cycle: Any) -> str:
@@ -152,23 +225,13 @@ class UreaSCRVectorEnv(VectorEnv):
             length = int(self._trace_len[t])
             offset = int(rng.integers(0, max(length // 2, 1))) if self.random_offsets else 0
             self._base[i] = self._trace_base[t] + offset
-            self._len[i] = length - offset
+            self._len[i] = length - offset if self.max_episode_steps is None else min(length - offset,
+                                                                                      self.max_episode_steps)
             self._k[i] = 0
-            if cfg.randomize > 0:
-                cat = randomised(cfg.catalyst, rng, cfg.randomize)
-                b.cat_params[i] = pack(aged(cat, cfg.ageing) if cfg.ageing > 0 else cat)
-            else:
-                b.cat_params[i] = self._base_params
-            row = self._flat[self._base[i]]
-            t0 = float(row[core.D_TIN])
-            cold = cfg.cold_start and offset == 0
-            b.theta[i] = coverage
-            b.temperature_k[i] = cfg.catalyst.ambient_temperature_k if cold else t0
-            nox0, no2f = float(row[core.D_NOX]), float(row[core.D_NO2F])
-            b.sensor_state[i] = (nox0 * (1.0 - no2f) + cfg.sensors.nox_sensor_no2_gain * nox0 * no2f, 0.0, t0)
-            b.acc[i] = 0.0
-            b.acc[i, core.A_STORED0_MOL] = float(b.theta[i].sum() * b.cat_params[i, 1])
-            b.initial_observation(int(i), nox0, t0, float(row[core.D_FLOW]), -1.0)
+            self._autoreset[i] = False
+            # a cold start only at the start of the cycle; a random offset starts mid-cycle, warm
+            b.start_episode(int(i), cfg, rng, self._base_params, self._flat[self._base[i]],
+                            cfg.cold_start and offset == 0, coverage)
 
     # ----------------------------------------------------------------------------------------------- API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
@@ -222,55 +285,98 @@ class UreaSCRVectorEnv(VectorEnv):
         step_index = np.empty(n, dtype=np.int64)
         truncated = np.empty(n, dtype=bool)
         b = self._batch
+        restarting = np.flatnonzero(self._autoreset)  # NEXT_STEP: the plants whose episode ended last step
+        skip = self._no_skip
+        if restarting.size:
+            if not np.all(np.isfinite(a)):  # checked before the resets change anything, as the step itself does
+                raise ValueError(f"actions must be finite; NaN or inf at envs {np.flatnonzero(~np.isfinite(a))[:10]}")
+            skip = self._autoreset.copy()
+            self._reset_envs(restarting, self.config.initial_coverage)
         status = b.vector_step(a, self._normalized_actions, self.max_rate_g_s, self._flat, self._base, self._k,
-                               self._len, self._row, self.np_random, self._noise, self.dt, info, step_index, truncated)
+                               self._len, self._row, self.np_random, self._noise, self.dt, info, step_index, truncated,
+                               skip)
         if status < 0:
             raise ValueError(f"actions must be finite; NaN or inf at envs {np.flatnonzero(~np.isfinite(a))[:10]}")
         ended = status > 0
         terminated = np.zeros(n, dtype=bool)
-        ones = self._ones
+        mask = self._ones if not restarting.size else ~skip
         infos: dict[str, Any] = {
-            "nox_cost": info[0], "_nox_cost": ones,
-            "nh3_cost": info[1], "_nh3_cost": ones,
-            "adblue_cost": info[2], "_adblue_cost": ones,
-            "tailpipe_nox_ppm": info[3], "_tailpipe_nox_ppm": ones,
-            "tailpipe_nh3_ppm": info[4], "_tailpipe_nh3_ppm": ones,
-            "adblue_g_s": info[6], "_adblue_g_s": ones,
-            "step_index": step_index, "_step_index": ones,
+            "nox_cost": info[0], "_nox_cost": mask,
+            "nh3_cost": info[1], "_nh3_cost": mask,
+            "adblue_cost": info[2], "_adblue_cost": mask,
+            "tailpipe_nox_ppm": info[3], "_tailpipe_nox_ppm": mask,
+            "tailpipe_nh3_ppm": info[4], "_tailpipe_nh3_ppm": mask,
+            "adblue_g_s": info[6], "_adblue_g_s": mask,
+            "step_index": step_index, "_step_index": mask,
         }
+        if restarting.size:
+            names = np.full(n, None, dtype=object)
+            for i in restarting:
+                names[i] = self._traces[self._env_trace[i]].name
+            infos["cycle"] = names
+            infos["_cycle"] = skip
         rewards = info[5]
         if ended:
-            out = b.out
             ended_idx = np.flatnonzero(truncated)
-            final_obs = np.full(n, None, dtype=object)
-            for i in ended_idx:
-                final_obs[i] = b.obs[i].copy()
-            mask = np.zeros(n, dtype=bool)
-            mask[ended_idx] = True
-            # what VectorEnv._add_info builds from {"episode_kpis": kpis} env by env (the KPIs are floats: float64
-            # arrays, each key with its own mask), built at once as rows of two arrays
-            kpis = [core.episode_kpis(b.acc[i], float(out[i, K.O_STORED])) for i in ended_idx]
-            keys = list(kpis[0])
-            values = np.zeros((len(keys), n))
-            values[:, ended_idx] = np.array([[k[key] for k in kpis] for key in keys])
-            masks = np.zeros((len(keys) + 1, n), dtype=bool)
-            masks[:, ended_idx] = True
-            per_key: dict[str, Any] = {}
-            for j, key in enumerate(keys):
-                per_key[key] = values[j]
-                per_key[f"_{key}"] = masks[j]
-            final_info = {"episode_kpis": per_key, "_episode_kpis": masks[-1]}
-            infos["final_obs"] = final_obs
-            infos["_final_obs"] = mask
-            infos["final_info"] = final_info
-            infos["_final_info"] = mask
-            self._reset_envs(ended_idx, self.config.initial_coverage)
+            ended_mask = np.zeros(n, dtype=bool)
+            ended_mask[ended_idx] = True
+            kpis = self._kpi_info(ended_idx)
+            if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+                infos["episode_kpis"] = kpis
+                infos["_episode_kpis"] = ended_mask
+                self._autoreset[ended_idx] = True
+            else:
+                final_obs = np.full(n, None, dtype=object)
+                for i in ended_idx:
+                    final_obs[i] = b.obs[i].copy()
+                infos["final_obs"] = final_obs
+                infos["_final_obs"] = ended_mask
+                infos["final_info"] = {"episode_kpis": kpis, "_episode_kpis": ended_mask}
+                infos["_final_info"] = ended_mask
+                self._reset_envs(ended_idx, self.config.initial_coverage)
         return b.obs.copy(), rewards, terminated, truncated, infos
+
+    def _kpi_info(self, ended_idx: np.ndarray) -> dict[str, np.ndarray]:
+        """The ended plants' KPIs as VectorEnv._add_info builds them from {"episode_kpis": kpis} env by env (float64
+        arrays, each key with its own mask), built at once as rows of two arrays."""
+        n = self.num_envs
+        kpis = [self._kpis_of(int(i)) for i in ended_idx]
+        keys = list(kpis[0])
+        values = np.zeros((len(keys), n))
+        values[:, ended_idx] = np.array([[k[key] for k in kpis] for key in keys])
+        masks = np.zeros((len(keys), n), dtype=bool)
+        masks[:, ended_idx] = True
+        per_key: dict[str, Any] = {}
+        for j, key in enumerate(keys):
+            per_key[key] = values[j]
+            per_key[f"_{key}"] = masks[j]
+        return per_key
+
+    def _kpis_of(self, i: int) -> dict[str, float]:
+        b = self._batch
+        acc = b.acc[i]
+        # NH3 stored now: the plant step's figure, or at the start of the episode (no step yet) the initial one
+        stored = float(b.out[i, K.O_STORED]) if acc[core.A_STEPS] > 0 else float(acc[core.A_STORED0_MOL])
+        return core.episode_kpis(acc, stored)
+
+    def episode_kpis(self) -> list[dict[str, float]]:
+        """The KPIs of every plant's current episode so far (:func:`scr_env.envs.kpis.episode_kpis`), one dict per
+        plant: after any number of steps, e.g. when a wrapper or the caller ends the episodes early. RuntimeError
+        before the first ``reset``."""
+        if self._needs_reset:
+            raise RuntimeError("episode_kpis() needs an episode: call reset() first")
+        return [self._kpis_of(i) for i in range(self.num_envs)]
 
     @property
     def state(self) -> dict[str, np.ndarray]:
         """Privileged states of all plants (copies): coverages and temperatures, shape (num_envs, n_cells)."""
         return {"nh3_coverage": self._batch.theta.copy(), "temperature_k": self._batch.temperature_k.copy()}
+
+    @property
+    def catalyst_params_array(self) -> np.ndarray:
+        """Packed parameters of every plant's catalyst in this episode (after ageing and randomisation), shape
+        (num_envs, len(scr_env.params.PACKED_FIELDS)) (a copy)."""
+        return self._batch.cat_params.copy()
 
     def close_extras(self, **kwargs: Any) -> None:
         pass

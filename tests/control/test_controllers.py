@@ -5,10 +5,10 @@ import pytest
 
 from control.baselines import FeedforwardPI, LookupTableDosing
 from control.evaluation import evaluate
-from ident.greybox import StorageGreyBox
 from control.models import FirstPrinciplesModel, IdentifiedModelAdapter
 from control.mpc import NonlinearMPC
 from control.protocol import PolicyPredictor, action_to_rate
+from ident.greybox import StorageGreyBox
 
 
 def _identified_mpc(**kw):
@@ -56,7 +56,7 @@ def test_failing_solve_returns_fallback_and_is_counted():
 
 def test_model_error_falls_back_not_raises():
     mpc = _identified_mpc()
-    mpc.model.prepare = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken model"))
+    mpc.estimator.make_step = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken model"))
     res = evaluate(mpc, cycles=("whsc",), max_steps=5)[0]
     assert res.stats["solver_failures"] == 5
 
@@ -69,7 +69,7 @@ def test_slip_guard_doses_nothing_on_failed_solves_while_the_nh3_sensor_reads_sl
     env = UreaSCREnv(cycle="whsc", nh3_sensor=True)
     env.reset(seed=0)
     mpc.attach(env)
-    mpc.model.prepare = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken model"))  # every solve fails
+    mpc.estimator.make_step = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken model"))  # every solve fails
     slipping = np.array([500.0, 550.0, 6.0, 30.0, 0.0, 25.0])
     clean = slipping.copy()
     clean[5] = 2.0
@@ -108,7 +108,7 @@ def test_oracle_collocation_equals_plant_step():
     # the oracle's stage parameters at those end-of-step temperatures
     model._env = type("E", (), {"state": {"nh3_coverage": theta, "temperature_k": temps}})()
     model.use_preview = False
-    _, pst, _ = model.prepare(None, 0.0, d[None, :], h, h)
+    pst, _ = model.stage_parameters(None, d[None, :], h, h)
     xs, us = ca.SX.sym("x", n), ca.SX.sym("u")
     r = ca.Function("r", [xs, us], [model.residual(xs, ca.DM(theta), us, d, ca.DM(pst[0]), h),
                                     model.outputs(xs, None, us, d, ca.DM(pst[0]))])
@@ -180,7 +180,7 @@ def test_pi_rejects_bad_observations_and_batches_without_touching_its_state():
                 with pytest.raises(err, match=match):
                     pi.predict(bad, episode_start=np.array([True]))
         got.append(pi.predict(o, episode_start=np.array([k == 0]))[0])
-    assert all(np.array_equal(g, e) for g, e in zip(got, expected))
+    assert all(np.array_equal(g, e) for g, e in zip(got, expected, strict=True))
     assert pi.stats() == ref.stats()
     # one plant as a (1, n) batch: action (1, 1), the same number
     a, _ = FeedforwardPI().predict(obs[0][None], episode_start=np.array([True]))
@@ -210,11 +210,11 @@ def test_mpc_rejects_bad_observations_before_solving_or_counting():
     mpc = _identified_mpc()
     for k, o in enumerate(obs):
         if k == 3:
-            before = (_mpc_counters(mpc), mpc.model.ekf_.x_.copy(), mpc.model.ekf_.P_.copy(), mpc._u_prev)
+            before = (_mpc_counters(mpc), mpc.estimator.ekf_.x_.copy(), mpc.estimator.ekf_.P_.copy(), mpc._u_prev)
             for bad, err, match in _bad_observations() + [(np.stack([o, o]), ValueError, "single plant")]:
                 with pytest.raises(err, match=match):
                     mpc.predict(bad)
-            after = (_mpc_counters(mpc), mpc.model.ekf_.x_, mpc.model.ekf_.P_, mpc._u_prev)
+            after = (_mpc_counters(mpc), mpc.estimator.ekf_.x_, mpc.estimator.ekf_.P_, mpc._u_prev)
             assert before[0] == after[0] and np.array_equal(before[1], after[1])
             assert np.array_equal(before[2], after[2]) and before[3] == after[3]
         a, _ = mpc.predict(o, episode_start=np.array([k == 0]))
@@ -257,7 +257,7 @@ def test_mpc_falls_back_on_numerical_failures_only(error, counted):
     def broken(*a, **k):
         raise error
 
-    mpc.model.prepare = broken
+    mpc.estimator.make_step = broken
     if counted:
         a, _ = mpc.predict(OBS, episode_start=np.array([True]))
         assert action_to_rate(a[0]) == pytest.approx(lut.dose_g_s(OBS), rel=1e-6)
@@ -291,9 +291,45 @@ def test_identified_nmpc_survives_a_nan_reading_on_the_gym_env():
             actions.append(a)
             obs, *_ = env.step(a)
         env.close()
-        return np.array(actions), mpc.stats()["solver_failures"], mpc.model.ekf_.x_
+        return np.array(actions), mpc.stats()["solver_failures"], mpc.estimator.ekf_.x_
 
     clean, fail_clean, x_clean = run(False)
     dirty, fail_dirty, x_dirty = run(True)
     assert np.array_equal(clean, dirty) and fail_clean == fail_dirty and np.array_equal(x_clean, x_dirty)
     assert np.all(np.isfinite(x_dirty)) and action_to_rate(dirty[-1][0]) > 0.0
+
+
+# ------------------------------------------------------------------------------------------------ feedforward
+def test_one_feedforward_law_for_every_feedforward():
+    """The look-up table, FeedforwardDosing and the identification data's dosing compute their dose with
+    feedforward_dose_g_s: the same numbers for the same ANR."""
+    from control.baselines import FeedforwardDosing, feedforward_dose_g_s
+    from ident.plant_data import feedforward_adblue_g_s
+    from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+
+    obs = np.array([800.0, 600.0, 8.0, 30.0, 0.0])
+    ref = 0.9 * (800.0 * 1e-6 * 8.0) / NH3_MOL_PER_G_ADBLUE
+    assert feedforward_dose_g_s(800.0, 8.0, 0.9) == ref == feedforward_adblue_g_s(800.0, 8.0, 0.9)
+    assert FeedforwardDosing(0.9).dose_g_s(obs) == ref
+    lut = LookupTableDosing()
+    assert lut.dose_g_s(obs) == min(feedforward_dose_g_s(800.0, 8.0, lut.target_anr(600.0, 8.0)), 3.0)
+    assert feedforward_dose_g_s(-5.0, 8.0) == 0.0 and feedforward_dose_g_s(500.0, -1.0) == 0.0
+    np.testing.assert_array_equal(feedforward_dose_g_s(np.array([800.0, 0.0]), 8.0, 0.9), [ref, 0.0])
+
+
+def test_feedforward_dosing_ramp_and_checks():
+    from control.baselines import FeedforwardDosing
+
+    ramp = FeedforwardDosing(anr=0.9, ramp_start_k=473.15, ramp_width_k=50.0)
+    assert ramp.target_anr(450.0) == 0.0 and ramp.target_anr(600.0) == 0.9
+    assert ramp.target_anr(498.15) == pytest.approx(0.45)
+    a, _ = ramp.predict(np.stack([OBS, OBS]))
+    assert a.shape == (2, 1)
+    res = evaluate(ramp, cycles=("whsc",), max_steps=20)[0]
+    assert res.timing["policy_time_ms_median"] >= 0
+    for bad in ({"anr": -0.1}, {"anr": float("nan")}, {"ramp_start_k": 473.0, "ramp_width_k": 0.0},
+                {"max_rate_g_s": 0.0}):
+        with pytest.raises(ValueError):
+            FeedforwardDosing(**bad)
+    with pytest.raises(ValueError, match="NaN"):
+        ramp.predict(np.array([np.nan, 550.0, 6.0, 30.0, 0.0]))

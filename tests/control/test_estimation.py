@@ -102,7 +102,7 @@ def _state(ekf):
 
 
 def _same(a, b):
-    return all((x is None and y is None) or np.array_equal(x, y) for x, y in zip(a, b))
+    return all((x is None and y is None) or np.array_equal(x, y) for x, y in zip(a, b, strict=True))
 
 
 def test_a_nan_measurement_or_input_is_rejected_before_any_state_changes():
@@ -154,3 +154,59 @@ def test_a_non_finite_update_raises_and_leaves_the_filter_as_it_was():
     assert _same(before, _state(ekf))
     ekf.reset([0.0])
     assert np.isfinite(ekf.step([0.0], [0.0])).all()
+
+
+# ------------------------------------------------------------------------------------------------ estimators
+def test_observation_ekf_is_the_filter_on_the_loop_signals():
+    """make_step maps (observation, applied dose) to the model's inputs and the sensor reading to its measured
+    output, and runs ExtendedKalmanFilter.step: the same numbers as the filter fed by hand."""
+    from control.estimation import ObservationEKF
+    from control.signals import ModelSignals, urea_g_min
+
+    model = StorageGreyBox.from_params(np.zeros(11), np.array([0.95, 1.0]), n_cells=2)
+    step = model.to_casadi()
+    kw = {"process_noise": np.array([1e-6, 1e-6, 0.5]), "measurement_noise": 100.0,
+          "state_bounds": (np.array([0, 0, 250.0]), np.array([1, 1, 900.0]))}
+    est = ObservationEKF(step, ModelSignals.physical(), measured_output=2, measured_obs=(3,),
+                         initial_state=lambda obs: np.array([0.0, 0.0, obs[1]]), **kw)
+    ref = ExtendedKalmanFilter(step, measured=[2], x0=np.array([0.0, 0.0, 550.0]), **kw)
+    obs = [np.array([500.0 + 10 * k, 550.0, 6.0, 20.0 + k, 0.0]) for k in range(6)]
+    est.reset(obs[0])
+    assert np.array_equal(est.make_step(obs[0], 0.0, np.array([6.0, 550.0, 500.0, 0.4])), ref.x_)
+    for k in range(1, 6):
+        dose = 0.1 * k
+        x = est.make_step(obs[k], dose, np.array([6.0, 550.0, obs[k][0], 0.4]))
+        ref.step([obs[k][0], urea_g_min(dose), obs[k][1], obs[k][2]], [obs[k][3]])
+        assert np.array_equal(x, ref.x_) and x is not est.x_   # a copy
+    with pytest.raises(ValueError, match="measured_obs"):
+        ObservationEKF(step, ModelSignals.physical(), measured_output=(2, 1), measured_obs=(3,))
+
+
+def test_set_step_keeps_the_estimate_and_refuses_other_sizes():
+    lin = _linear_step()
+    ekf = ExtendedKalmanFilter(lin, x0=np.array([1.0, 2.0]))
+    ekf.step([0.3], [1.1])
+    x, p = ekf.x_.copy(), ekf.P_.copy()
+    x_s, u_s = ca.SX.sym("x", 2), ca.SX.sym("u", 1)
+    faster = ca.Function("step", [x_s, u_s], [0.5 * x_s + u_s[0], x_s[0]])
+    ekf.set_step(faster)
+    assert np.array_equal(ekf.x_, x) and np.array_equal(ekf.P_, p) and ekf.step_function is faster
+    assert np.allclose(ekf.propagate([1.0]), 0.5 * x + 1.0)
+    three = ca.Function("step", [ca.SX.sym("x", 3), u_s], [ca.SX.zeros(3), ca.SX.zeros(1)])
+    with pytest.raises(ValueError, match="sizes"):
+        ekf.set_step(three)
+    with pytest.raises(TypeError, match="casadi.Function"):
+        ekf.set_step("not a function")
+
+
+def test_privileged_state_reads_the_simulator_and_needs_it():
+    from control.estimation import PrivilegedState
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    est = PrivilegedState()
+    with pytest.raises(RuntimeError, match="attach"):
+        est.make_step(np.zeros(5), 0.0, np.zeros(4))
+    env = UreaSCREnv(cycle="whsc")
+    obs, _ = env.reset(seed=0)
+    est.attach(env)
+    assert np.array_equal(est.make_step(obs, 0.0, np.zeros(4)), np.clip(env.state["nh3_coverage"], 0, 1))

@@ -67,3 +67,65 @@ def test_empty_or_non_iterable_cycles_and_seeds_are_refused():
         evaluate(_Const(0.1), cycles="whsc", seeds=[], max_steps=3)
     with pytest.raises(TypeError, match="seeds must be one item or a sequence"):
         evaluate(_Const(0.1), cycles="whsc", seeds=1.5, max_steps=3)
+
+
+def test_max_steps_must_be_a_positive_number_of_steps():
+    """max_steps=0 used to end in UnboundLocalError; now 0, negatives, floats and bools are named errors."""
+    import pytest
+
+    for bad in (0, -3, 2.5, True, "5"):
+        with pytest.raises(ValueError, match="max_steps"):
+            evaluate(_Const(0.0), cycles=("whtc",), max_steps=bad)
+    one = evaluate(_Const(0.0), cycles=("whtc",), max_steps=np.int64(1), record_trajectory=True)[0]
+    assert len(one.trajectory["reward"]) == 1 and one.kpis == {}
+
+
+def test_evaluate_runs_any_gymnasium_environment():
+    """A surrogate of the plant, a wrapped plant and a classic-control task run through the same harness."""
+    import gymnasium as gym
+    import pytest
+
+    from control.rl.surrogate import SurrogateSCREnv
+    from scr_env.envs.urea_scr import UreaSCREnv
+    from tests.control.test_rl import _surrogate
+
+    class Plain:   # a policy without attach() or stats()
+        def predict(self, observation, state=None, episode_start=None, deterministic=True):
+            return np.array([0.0], dtype=np.float32), state
+
+    sur = SurrogateSCREnv(_surrogate(), cycle="random", random_cycle_duration_s=60.0)
+    res = evaluate(Plain(), env=sur, seeds=(0, 1), record_trajectory=True, name="plain")
+    assert [r.seed for r in res] == [0, 1] and len(res[0].trajectory["reward"]) == 120
+    assert {"tailpipe_nox_g_per_kwh", "mean_nh3_slip_ppm"} <= set(res[0].kpis)
+    assert np.isnan(res[0].trajectory["mean_coverage"]).all()   # a surrogate has no catalyst state
+    # a wrapped plant gives the same KPIs as the harness's own plant
+    wrapped = gym.wrappers.ClipAction(UreaSCREnv(cycle="whsc"))
+    a = evaluate(_Const(0.2), env=wrapped, seeds=0)[0].kpis
+    b = evaluate(_Const(0.2), cycles="whsc", seeds=0)[0].kpis
+    assert a == b
+    # any Gymnasium task: the episode ends when the environment says so
+    cart = gym.make("CartPole-v1")
+
+    class Left:
+        def predict(self, observation, state=None, episode_start=None, deterministic=True):
+            return 0, state
+
+    r = evaluate(Left(), env=cart, seeds=0, record_trajectory=True)[0]
+    assert r.kpis == {} and 5 < len(r.trajectory["reward"]) < 100
+    with pytest.raises(ValueError, match="either env or cycles"):
+        evaluate(Plain(), env=sur, cycles="whtc")
+    with pytest.raises(TypeError, match="Gymnasium environment"):
+        evaluate(Plain(), env=object())
+
+
+def test_cycle_segment_cuts_every_signal():
+    from control.evaluation import cycle_segment
+    from scr_env.cycles import load_cycle
+
+    seg = cycle_segment("whtc", 60.0, name="whtc_0-60s")
+    full = load_cycle("whtc", dt=0.5)
+    assert seg.n_steps == 120 and seg.name == "whtc_0-60s"
+    np.testing.assert_array_equal(seg.scr_inlet_temperature_k, full.scr_inlet_temperature_k[:120])
+    assert cycle_segment(full, 1e6).n_steps == full.n_steps
+    res = evaluate(_Const(0.1), cycles=seg)[0]
+    assert res.cycle == "whtc_0-60s" and res.kpis["engine_work_kwh"] > 0

@@ -242,7 +242,7 @@ def test_rl_policy_rejects_bad_observations_without_touching_the_pipeline():
                 with pytest.raises(err, match=match):
                     pol.predict(bad, episode_start=np.array([False]))
         got.append(pol.predict(o, episode_start=np.array([k == 0]))[0])
-    assert all(np.array_equal(g, e) for g, e in zip(got, expected))
+    assert all(np.array_equal(g, e) for g, e in zip(got, expected, strict=True))
 
 
 def test_rl_policy_batch_with_one_bad_row_is_rejected_whole():

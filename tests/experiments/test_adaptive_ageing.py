@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 
+from control import adaptive, ageing
 from experiments import adaptive_ageing as aa
 
 IDENT = {"params": [-0.0803, -0.2129, 0.2140, -0.1841, 0.1300, 0.9155, -0.0592, 0.0613, 0.9172, -0.2831, 0.0290],
@@ -15,16 +16,17 @@ IDENT = {"params": [-0.0803, -0.2129, 0.2140, -0.1841, 0.1300, 0.9155, -0.0592, 
 def test_drift_step_is_the_identified_model_at_zero_drift_and_loses_capacity() -> None:
     from ident.greybox import StorageGreyBox
 
-    fixed = StorageGreyBox.from_params(IDENT["params"], IDENT["sensor_gains"]).to_casadi()
-    f = aa.drift_step(IDENT)
+    model = StorageGreyBox.from_params(IDENT["params"], IDENT["sensor_gains"])
+    fixed = model.to_casadi()
+    f = adaptive.drift_step(model)
     x, u = np.array([0.3, 0.1, 520.0]), np.array([400.0, 40.0, 530.0, 12.0])
     np.testing.assert_allclose(np.asarray(f(x, u, [0.0, 0.0])[1]), np.asarray(fixed(x, u)[1]), rtol=1e-12)
     # same stored amount in a smaller brick: higher coverage, more slip
     x_small = np.array([0.6, 0.5, 520.0])
     assert float(f(x_small, u, [np.log(0.5), 0.0])[1][1]) > float(f(x_small, u, [0.0, 0.0])[1][1])
-    items = aa.schedule(3, "alternate")
+    items = ageing.schedule(3, "alternate")
     assert [i["cycle"] for i in items] == ["whtc", "whsc", "whtc"] and items[-1]["severity"] == 1.0
-    assert aa.retention(1.0) == aa.AGED_END
+    assert ageing.retention(1.0) == ageing.AGED_END
 
 
 def test_pipeline_on_short_segments(tmp_path, monkeypatch) -> None:

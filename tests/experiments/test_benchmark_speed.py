@@ -21,7 +21,8 @@ def test_measure_reports_medians_of_interleaved_rounds() -> None:
 
 def test_main_writes_json(tmp_path) -> None:
     path = tmp_path / "speed.json"
-    benchmark_speed.main(["--json", str(path), "--num-envs", "4", "--seconds", "0.05", "--rounds", "1", "--no-rpem"])
+    benchmark_speed.main(["--json", str(path), "--num-envs", "4", "--seconds", "0.05", "--rounds", "1", "--no-rpem",
+                         "--no-first-step"])
     doc = json.loads(path.read_text())
     assert {"env_steps_per_s", "pendulum_steps_per_s", "vector_env_steps_per_s", "num_envs"} <= set(doc)
     with pytest.raises(SystemExit):

@@ -27,7 +27,7 @@ def test_choose_reports_none_when_no_value_meets_the_target():
 def test_unknown_controller_is_named():
     with pytest.raises(ValueError, match="controller"):
         _controller("lqr", 1.0, None)
-    assert set(KNOBS) == {"identified", "identified_preview", "identified_nh3", "oracle"}
+    assert set(KNOBS) == {"identified", "identified_preview", "identified_nh3", "oracle", "lookup_table"}
 
 
 def test_identification_cycles_must_not_be_calibration_cycles(capsys):
@@ -39,10 +39,11 @@ def test_identification_cycles_must_not_be_calibration_cycles(capsys):
 
 
 def test_identified_kinds_differ_only_in_the_preview():
-    from experiments.control_benchmark import IDENT_SEEDS
+    from control.factory import IDENT_SEEDS
+    from ident.greybox import StorageGreyBox
 
-    ident = {"params": [0.0] * 11, "sensor_gains": [0.95, 1.0], "n_cells": 2, "dt": 0.5}
-    plain, preview = _controller("identified", 50.0, ident), _controller("identified_preview", 50.0, ident)
+    model = StorageGreyBox.from_params([0.0] * 11, [0.95, 1.0])
+    plain, preview = _controller("identified", 50.0, model), _controller("identified_preview", 50.0, model)
     assert (plain.preview, preview.preview) == (False, True)
     assert plain.model.implicit_stage is not None and preview.model.implicit_stage is not None
     assert 5 not in IDENT_SEEDS and 6 not in IDENT_SEEDS

@@ -9,15 +9,20 @@ import pytest
 from control.baselines import LookupTableDosing
 from experiments import control_benchmark as cb
 
+PARAMS = [-0.0803, -0.2129, 0.2140, -0.1841, 0.1300, 0.9155, -0.0592, 0.0613, 0.9172, -0.2831, 0.0290]
+
 
 @pytest.fixture
 def cheap(monkeypatch, tmp_path):
+    from ident.greybox import StorageGreyBox
+
     monkeypatch.chdir(tmp_path)   # the run folder goes to ./runs
-    monkeypatch.setattr(cb, "identify", lambda *a, **k: {"fit_seconds": 0.0, "validation_rmse_ppm_whtc": {},
-                                                         "validation_mean_ppm_whtc": {}})
-    monkeypatch.setattr(cb, "make", lambda name, ident, quick: LookupTableDosing())
+    model = StorageGreyBox.from_params(PARAMS, [0.9394, 1.1639])
+    monkeypatch.setattr(cb, "greybox_record", lambda *a, **k: (model, {
+        "fit_seconds": 0.0, "validation_rmse_ppm_whtc": {}, "validation_mean_ppm_whtc": {}}))
+    monkeypatch.setattr(cb, "make_controller", lambda name, model, quick: LookupTableDosing())
     monkeypatch.setattr(cb, "available_rl", lambda: ([], ""))
-    monkeypatch.setattr(cb, "plot", lambda *a, **k: None)
+    monkeypatch.setattr(cb, "closed_loop_figure", lambda *a, **k: None)
     return tmp_path
 
 
@@ -27,6 +32,7 @@ def test_seeds_are_averaged_and_listed(cheap) -> None:
     assert doc["seeds"] == [0, 3] and json.loads(out.read_text())["seeds"] == [0, 3]
     c = doc["cycles"]["whtc"]["controllers"]
     assert set(c) == {*cb.CORE, *cb.IDENTIFIED_VARIANTS}
+    assert (cheap / doc["run_folder"] / "greybox_model.json").exists()   # the model the NMPCs were built on
     row = c["lookup_table"]
     per = row["per_seed"]
     assert per["seed"] == [0, 3]

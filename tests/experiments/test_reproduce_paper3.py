@@ -11,7 +11,8 @@ from experiments import reproduce_paper3 as rp3
 def test_smoke_run_writes_the_table(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the run folder goes to ./runs
     out = tmp_path / "r.json"
-    code = rp3.main(["--quick", "--n-samples", "120", "--passes", "1", "--segments", "1", "--no-plots", "--json", str(out)])
+    code = rp3.main(["--quick", "--n-samples", "120", "--passes", "1", "--segments", "1", "--no-plots",
+                     "--json", str(out)])
     res = json.loads(out.read_text())
     assert code in (0, 1)
     assert [r["method"] for r in res["rows"]] == list(rp3.METHODS)

@@ -38,3 +38,50 @@ def test_as_vector_and_check_positive_int():
             check_positive_int("n", bad)
     with pytest.raises(ValueError, match="^k must be an integer >= 0"):
         check_positive_int("k", -1, minimum=0)
+
+
+# ------------------------------------------------------------------------------------------ the estimator base
+def test_not_fitted_error_is_a_value_and_attribute_error():
+    from ident.base import NotFittedError
+
+    assert issubclass(NotFittedError, ValueError) and issubclass(NotFittedError, AttributeError)
+
+
+def test_every_model_class_shares_one_base_and_one_save_load():
+    from ident.base import BaseEstimator
+    from ident.greybox import StorageGreyBox
+    from ident.hammerstein_wiener import HammersteinWiener
+    from ident.linear import ARX, N4SID, OutputError, StateSpacePEM
+    from ident.multiple_model import MultipleModel
+    from ident.rpem import RecursivePEM
+    from ident.stack import OutputStack
+
+    for cls in (RecursivePEM, HammersteinWiener, ARX, OutputError, N4SID, StateSpacePEM, MultipleModel,
+                StorageGreyBox, OutputStack):
+        assert issubclass(cls, BaseEstimator), cls
+        for name in ("get_params", "set_params", "clone", "__repr__", "save"):
+            assert getattr(cls, name) is getattr(BaseEstimator, name), (cls, name)
+        assert cls.load.__func__ is BaseEstimator.load.__func__, cls
+
+
+def test_params_clone_and_repr_come_from_the_signature():
+    from ident.hammerstein_wiener import HammersteinWiener, Saturation
+    from ident.rpem import RecursivePEM
+
+    est = RecursivePEM(n_states=3, alpha=2.0, theta0=[1.0, 2.0])
+    params = est.get_params()
+    assert params["n_states"] == 3 and params["alpha"] == 2.0 and "R0" in params
+    assert repr(est) == "RecursivePEM(n_states=3, alpha=2.0, theta0=[1.0, 2.0])"
+    twin = est.clone(alpha=3.0)
+    assert type(twin) is RecursivePEM and twin.alpha == 3.0 and twin.n_states == 3
+    assert twin.theta0 == est.theta0 and twin.theta0 is not est.theta0  # deep copy, nothing shared
+    assert est.set_params(R0=10.0) is est and est.R0 == 10.0
+    with pytest.raises(ValueError, match="invalid parameter 'r0' for RecursivePEM; valid parameters: "):
+        est.set_params(r0=1.0)
+    with pytest.raises(ValueError, match="invalid parameter"):
+        est.clone(bogus=1)
+    hw = HammersteinWiener(output_block=Saturation(lower=0.0), nb=3)
+    again = type(hw)(**hw.get_params())
+    assert again.nb == 3 and isinstance(again.output_block, Saturation)
+    assert hw.clone().output_block is not hw.output_block
+    assert "nb=3" in repr(hw) and "nf=" not in repr(hw)

@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 
 from control.evaluation import evaluate
-from ident.greybox import StorageGreyBox
 from control.models import IdentifiedModelAdapter
 from control.mpc import NonlinearMPC
+from ident.base import NotFittedError
+from ident.greybox import StorageGreyBox
 
 PARAMS = np.array([0.1, -0.2, 0.3, 0.02, -0.1, 0.2, 0.05, 0.1, -0.3, 1.0, 0.0])
 
@@ -51,12 +52,15 @@ def test_implicit_stage_is_zero_at_a_steady_state():
 
 
 def test_unfitted_model_raises_on_implicit_stage():
-    with pytest.raises(RuntimeError, match="fit"):
+    with pytest.raises(NotFittedError, match="fit"):
         StorageGreyBox().implicit_stage(ca.DM.zeros(3), ca.DM.zeros(3), ca.DM.zeros(4), 1.0)
 
 
 def test_nmpc_on_implicit_stage_solves_and_doses():
-    m = StorageGreyBox.from_params(PARAMS, np.array([0.95, 1.0]), n_cells=2)
+    # NOx sensor gain 0.9 of the hand-set model: the plant's catalyst oxidises some NO to NO2 (#20), which the sensor
+    # reads at 0.9, so the reading without NH3 falls a little below the engine-out NOx; with a gain of 0.95 the model
+    # could explain that only by stored NH3, and 11 of the 20 solves hit the iteration limit
+    m = StorageGreyBox.from_params(PARAMS, np.array([0.9, 1.0]), n_cells=2)
     adapter = IdentifiedModelAdapter(m, np.zeros(4), np.ones(4), np.zeros(3), np.ones(3), measurement_noise=100.0,
                                      process_noise=np.array([1e-6, 1e-6, 0.5]),
                                      state_bounds=(np.array([0, 0, 250.0]), np.array([1, 1, 900.0])),
@@ -83,7 +87,7 @@ def test_ekf_reads_the_nh3_sensor_when_told():
     mpc = _nh3_sensor_mpc()
     res = evaluate(mpc, cycles=("whsc",), max_steps=20, env_kwargs={"nh3_sensor": True})[0]
     assert res.stats["solves"] == 20 and res.stats["solver_failures"] == 0
-    assert mpc.model.ekf_.R_.shape == (2, 2)
+    assert mpc.estimator.ekf_.R_.shape == (2, 2)
 
 
 def test_nh3_sensor_model_on_an_env_without_the_sensor_is_refused():
@@ -144,7 +148,7 @@ def test_fit_rejects_bad_data_at_entry_and_keeps_a_fitted_model():
     for args, match in _bad_fit_data():
         with pytest.raises(ValueError, match=match):
             m.fit(*args)
-        assert all(np.array_equal(a, b) for a, b in zip(state, _fitted_state(m)))
+        assert all(np.array_equal(a, b) for a, b in zip(state, _fitted_state(m), strict=False))
 
 
 def test_a_fit_failing_midway_leaves_the_model_as_it_was(monkeypatch):
@@ -162,7 +166,7 @@ def test_a_fit_failing_midway_leaves_the_model_as_it_was(monkeypatch):
     monkeypatch.setattr(ci.np.linalg, "lstsq", boom)
     with pytest.raises(np.linalg.LinAlgError):
         m.fit(u, y)
-    assert all(np.array_equal(a, b) for a, b in zip(state, _fitted_state(m)))
+    assert all(np.array_equal(a, b) for a, b in zip(state, _fitted_state(m), strict=False))
     monkeypatch.undo()
     fresh = StorageGreyBox(max_nfev=2)
     monkeypatch.setattr(ci, "least_squares", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("optimiser")))
@@ -213,7 +217,7 @@ def test_from_params_checks_the_numbers():
         StorageGreyBox.from_params(np.r_[np.zeros(10), np.nan], np.array([0.95, 1.0]))
     with pytest.raises(ValueError, match="sensor_gains must be 2 finite numbers"):
         StorageGreyBox.from_params(PARAMS, np.array([0.95]))
-    with pytest.raises(ValueError, match="n_cells must be a positive integer"):
+    with pytest.raises(ValueError, match="n_cells must be an integer from 1 to 100"):
         StorageGreyBox.from_params(PARAMS, np.array([0.95, 1.0]), n_cells=0)
 
 

@@ -48,7 +48,7 @@ def test_base_policy_is_the_feedforward_and_additive_mode() -> None:
     ff = excitation_dataset("whtc", seed=0, base_anr=0.8, sensor_noise=False, **SHORT)
     # the feedforward uses the lagged sensors; over a segment its total is close to ANR * NOx flow
     nox_mol = np.sum(ff.u[:, 0] * 1e-6 * ff.u[:, 3])
-    ref = sum(feedforward_adblue_g_s(n, f, 0.8) for n, f in zip(ff.u[:, 0], ff.u[:, 3]))
+    ref = sum(feedforward_adblue_g_s(n, f, 0.8) for n, f in zip(ff.u[:, 0], ff.u[:, 3], strict=False))
     assert nox_mol > 0
     assert np.sum(ff.u[:, 1]) / UREA_G_MIN_PER_ADBLUE_G_S == pytest.approx(ref, rel=0.25)
     add = excitation_dataset("whtc", seed=0, base_anr=0.0, excitation=RandomSteps(0.1, 0.2, 2.0, 4.0),
@@ -68,7 +68,8 @@ def test_bad_arguments() -> None:
 
 def _feedforward_urea_g_min(ds) -> np.ndarray:
     """The production feedforward on the true inlet NOx flow, g/min urea."""
-    return np.array([feedforward_adblue_g_s(n, f, PAPER4_BASE_ANR) for n, f in zip(ds.u[:, 0], ds.u[:, 3])]
+    return np.array([feedforward_adblue_g_s(n, f, PAPER4_BASE_ANR)
+                     for n, f in zip(ds.u[:, 0], ds.u[:, 3], strict=False)]
                     ) * UREA_G_MIN_PER_ADBLUE_G_S
 
 

@@ -18,7 +18,7 @@ import pytest
 
 from scr_env.casadi_model import catalyst_rhs, catalyst_step
 from scr_env.constants import EXHAUST_HEAT_CAPACITY_J_KG_K, EXHAUST_MOLAR_MASS_KG_MOL
-from scr_env.params import CatalystParams, DosingParams, SensorParams, aged, pack
+from scr_env.params import KINETIC_SLICE, CatalystParams, DosingParams, SensorParams, aged, pack
 from scr_env.physics import kernel as K
 from scr_env.physics.backends import cell_balance_nb, decomposition_efficiency_nb, rate_constants_nb
 
@@ -60,13 +60,13 @@ def _chain(x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
     y = (eta * min(adblue, AUX[0]) * K.NH3_MOL_PER_G_ADBLUE / flow, nox * 1e-6 * (1 - no2f), nox * 1e-6 * no2f)
     g, scale, y_n2o = np.zeros(N), np.zeros(N), 0.0
     for j in range(N):
-        k = rate_constants_nb(x[N + j], o2, *CAT[6:])
+        k = rate_constants_nb(x[N + j], o2, *CAT[KINETIC_SLICE])
         r = cell_balance_nb(x[j], q, *y, *k)
         g[j] = r[0]
         # magnitude of the terms of g: fed N, adsorption/desorption (bounded by y_nh3 (q + k_ads)), reactions
-        scale[j] = q * sum(y) + r[2] * (q + k[0]) + sum(abs(v) for v in r[5:])
+        scale[j] = q * sum(y) + r[2] * (q + k[0]) + sum(abs(v) for v in r[5:7])
         y = r[2:5]
-        y_n2o += r[10] / q
+        y_n2o += r[5] / q
     return g, scale, np.array([y[1], y[2], y[0], y_n2o]) * 1e6
 
 

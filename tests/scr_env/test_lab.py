@@ -8,7 +8,8 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from scr_env.lab import steady_state
+from scr_env.catalyst_data import step_records
+from scr_env.lab import run_protocol, steady_state
 from scr_env.params import CatalystParams
 
 
@@ -86,6 +87,8 @@ def test_accepts_params_object_and_aged_catalyst_converts_less():
     ({"temperature_c": 250.0, "o2_percent": 30.0}, "o2_percent"),
     ({"temperature_c": 250.0, "ghsv_per_h": 0.0}, "ghsv_per_h"),
     ({"temperature_c": 250.0, "n_cells": 2.5}, "n_cells"),
+    ({"temperature_c": 250.0, "age_h": 17.0}, "age_h"),
+    ({"temperature_c": 250.0, "age_h": "new"}, "age_h"),
 ])
 def test_bad_input_raises_value_error_naming_the_argument(kwargs, name):
     with pytest.raises(ValueError, match=name):
@@ -95,3 +98,79 @@ def test_bad_input_raises_value_error_naming_the_argument(kwargs, name):
 def test_unknown_preset_raises_value_error():
     with pytest.raises(ValueError, match="preset"):
         steady_state("platinum_unobtainium", 250.0, nh3_ppm=300.0)
+
+
+# --- run_protocol: a measured inlet time series through the lab sample ------------------------------------------------
+
+
+def _constant_inlet(n: int, dt_s: float, **ppm: float) -> dict[str, np.ndarray]:
+    return {"time_s": np.arange(n) * dt_s, "O2_in_percent": np.full(n, ppm.pop("o2", 10.0)),
+            "NH3_in_ppm": np.full(n, ppm.get("nh3", 0.0)), "NO_in_ppm": np.full(n, ppm.get("no", 0.0)),
+            "NO2_in_ppm": np.full(n, ppm.get("no2", 0.0))}
+
+
+@pytest.mark.parametrize(("feed", "t_c"), [({"no": 300.0, "nh3": 300.0}, 250.0), ({"nh3": 300.0}, 450.0),
+                                           ({"no": 150.0, "no2": 150.0, "nh3": 300.0}, 200.0)])
+def test_replay_of_a_constant_feed_ends_at_the_steady_state(feed, t_c):
+    out = run_protocol(_constant_inlet(400, 10.0, **feed), t_c, age_h=4.0)
+    ss = steady_state("cu_zeolite", t_c, age_h=4.0, nh3_ppm=feed.get("nh3", 0.0), no_ppm=feed.get("no", 0.0),
+                      no2_ppm=feed.get("no2", 0.0))
+    for col, key in (("NH3_out_ppm", "nh3_out_ppm"), ("NO_out_ppm", "no_out_ppm"), ("NO2_out_ppm", "no2_out_ppm"),
+                     ("N2O_out_ppm", "n2o_out_ppm")):
+        assert out[col][-1] == pytest.approx(ss[key], rel=1e-3, abs=0.05), col
+    assert out["mean_coverage"][-1] == pytest.approx(ss["mean_coverage"], rel=1e-3)
+
+
+def test_replay_stores_nitrogen_exactly():
+    """Without O2 nothing reacts: the NH3 taken up equals the stored NH3 (samples of 1 s, one implicit step each)."""
+    n = 600
+    inlet = _constant_inlet(n, 1.0, nh3=300.0, o2=0.0)
+    inlet["NH3_in_ppm"][300:] = 0.0  # fill for 5 min, then purge
+    out = run_protocol(inlet, 300.0)
+    flow = 60000.0 / 3600.0 * 101325.0 / (8.314462618 * 273.15)  # mol/s per m3 (GHSV at 0 C)
+    taken = np.sum((inlet["NH3_in_ppm"][:-1] - out["NH3_out_ppm"][1:]) * 1e-6) * flow  # mol per m3
+    assert taken == pytest.approx(out["nh3_stored_mol_per_m3"][-1], rel=1e-9)
+    assert out["nh3_stored_mol_per_m3"][299] > out["nh3_stored_mol_per_m3"][-1] > 0.0  # desorbs in the purge
+
+
+def test_replay_of_a_measured_record_follows_storage_and_scr():
+    """250 C, unaged: the NH3 step breaks through late (storage), standard SCR then removes most NO."""
+    rec = step_records(250.0, 0.0)
+    out = run_protocol(rec, 250.0)
+    assert set(out) >= {"time_min", "NH3_out_ppm", "NO_out_ppm", "NO2_out_ppm", "N2O_out_ppm"}
+    assert all(v.shape == rec["time_min"].shape and np.all(np.isfinite(v)) for v in out.values())
+    step = np.argmax(rec["NH3_in_ppm"] > 150.0)
+    half = np.argmax(out["NH3_out_ppm"] > 150.0)
+    measured_half = np.argmax(rec["NH3_out_ppm"] > 150.0)
+    assert half > step + 6  # more than a minute of uptake before half breakthrough
+    assert abs(rec["time_min"][half] - rec["time_min"][measured_half]) < 3.0  # min
+    scr = (rec["NH3_in_ppm"] > 150.0) & (rec["NO_in_ppm"] > 150.0)
+    assert np.median(out["NO_out_ppm"][scr]) < 0.2 * np.median(rec["NO_in_ppm"][scr])
+
+
+@pytest.mark.parametrize(("change", "name"), [
+    ({"time_s": None}, "time"), ({"NH3_in_ppm": None}, "NH3_in_ppm"),
+    ({"time_s": np.r_[0.0, 0.0, np.arange(2, 10)]}, "increasing"),
+    ({"NO_in_ppm": np.r_[np.nan, np.zeros(9)]}, "NO_in_ppm"), ({"NH3_in_ppm": np.r_[-50.0, np.zeros(9)]}, "NH3_in_ppm"),
+    ({"O2_in_percent": np.full(10, 30.0)}, "O2_in_percent"), ({"NO_in_ppm": np.zeros(9)}, "NO_in_ppm"),
+])
+def test_replay_refuses_bad_inlets_naming_the_column(change, name):
+    inlet = _constant_inlet(10, 10.0, no=300.0, nh3=300.0)
+    for k, v in change.items():
+        if v is None:
+            del inlet[k]
+        else:
+            inlet[k] = v
+    with pytest.raises(ValueError, match=name):
+        run_protocol(inlet, 250.0)
+
+
+@pytest.mark.parametrize(("kwargs", "name"), [({"temperature_c": [250.0, 260.0]}, "temperature_c"),
+                                              ({"temperature_c": 900.0}, "temperature_c"),
+                                              ({"age_h": 40.0}, "age_h"), ({"initial_coverage": 1.5},
+                                                                           "initial_coverage")])
+def test_replay_refuses_bad_arguments(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        run_protocol(_constant_inlet(10, 10.0, no=300.0), **{"temperature_c": 250.0, **kwargs})
+    with pytest.raises(ValueError, match="inlet"):
+        run_protocol("protocol.csv", 250.0)

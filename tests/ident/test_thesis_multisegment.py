@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments import paper4_multisegment as ms
 from ident.dataset import IODataset
 from ident.linear._statespace import simulate_ss
+from ident.thesis import multisegment as ms
 
 
 def test_segments_do_not_overlap() -> None:

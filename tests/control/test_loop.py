@@ -1,10 +1,11 @@
-"""identify_then_control: the gap-closed measure respects the slip limit; held-out segments; the output stack."""
+"""control.loop (the identify-then-control loop): the gap-closed measure respects the slip limit; held-out segments;
+the output stack."""
 from __future__ import annotations
 
 import casadi as ca
 import numpy as np
 
-from experiments.identify_then_control import SLIP_LIMIT_PPM, gap_closed, held_out
+from control.loop import SLIP_LIMIT_PPM, gap_closed, held_out
 from ident.linear import ARX
 from ident.stack import OutputStack
 
@@ -39,7 +40,8 @@ def test_quick_held_out_is_the_start_of_the_whtc() -> None:
 def test_output_stack_predicts_and_exports_like_its_parts() -> None:
     rng = np.random.default_rng(0)
     u = rng.standard_normal((400, 2))
-    y = np.column_stack([np.convolve(u[:, 0], [0.5, 0.3], "full")[:400], np.convolve(u[:, 1], [0.2, 0.1], "full")[:400]])
+    y = np.column_stack([np.convolve(u[:, 0], [0.5, 0.3], "full")[:400],
+                         np.convolve(u[:, 1], [0.2, 0.1], "full")[:400]])
     stack = OutputStack([ARX(na=1, nb=2, nk=0), ARX(na=1, nb=2, nk=0)]).fit(u, y)
     yp = stack.predict(u)
     assert yp.shape == (400, 2)

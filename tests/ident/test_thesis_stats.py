@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments._stats import ALPHA, paired_verdict, summarise
+from ident.thesis.stats import ALPHA, paired_verdict, summarise
 
 
 @pytest.mark.parametrize("diff, word", [(np.arange(1, 11), "holds"), (-np.arange(1, 11), "does not hold"),

@@ -1,0 +1,55 @@
+"""control.factory: the benchmarked controllers by name, built from a fitted grey-box object (never a dict)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from control.baselines import FeedforwardPI, LookupTableDosing
+from control.estimation import ObservationEKF, PrivilegedState
+from control.factory import CONTROLLERS, IDENTIFIED_VARIANTS, identified_mpc, make_controller, oracle_mpc
+from control.mpc import NonlinearMPC
+from ident.greybox import StorageGreyBox
+
+PARAMS = [-0.0803, -0.2129, 0.2140, -0.1841, 0.1300, 0.9155, -0.0592, 0.0613, 0.9172, -0.2831, 0.0290]
+
+
+@pytest.fixture(scope="module")
+def model():
+    return StorageGreyBox.from_params(PARAMS, [0.9394, 1.1639])
+
+
+def test_every_controller_by_name(model) -> None:
+    built = {n: make_controller(n, model, quick=True) for n in CONTROLLERS}
+    assert isinstance(built["lookup_table"], LookupTableDosing) and isinstance(built["pi"], FeedforwardPI)
+    for n in IDENTIFIED_VARIANTS:
+        mpc = built[n]
+        assert isinstance(mpc, NonlinearMPC) and isinstance(mpc.estimator, ObservationEKF) and mpc.horizon == 10
+    assert built["mpc_identified"].env_kwargs == {"nh3_sensor": True}
+    assert built["mpc_identified"].estimator.measured_obs == (3, 5) and built["mpc_identified"].slip_guard
+    assert built["mpc_identified_nox_sensor"].env_kwargs == {} and built["mpc_identified_nox_sensor"].preview
+    assert not built["mpc_identified_no_preview"].preview
+    assert isinstance(built["mpc_oracle"].estimator, PrivilegedState) and built["mpc_oracle"].preview
+
+
+def test_identified_mpc_takes_a_fitted_model_not_a_dict(model) -> None:
+    with pytest.raises(TypeError, match="StorageGreyBox"):
+        identified_mpc({"params": PARAMS, "sensor_gains": [1, 1], "n_cells": 2, "dt": 0.5})
+    from ident.base import NotFittedError
+
+    with pytest.raises(NotFittedError, match="not fitted"):
+        identified_mpc(StorageGreyBox())
+    with pytest.raises(ValueError, match="needs the fitted grey-box"):
+        make_controller("mpc_identified", None)
+    assert oracle_mpc(safe_slip_ppm=20.0).model.safe_slip_ppm == 20.0
+
+
+def test_the_estimator_is_shared_not_hidden(model) -> None:
+    """An estimator object passed on to another MPC goes on from where it is (do-mpc's split)."""
+    from control.evaluation import evaluate
+
+    mpc = identified_mpc(model, quick=True, nh3_sensor=False)
+    evaluate(mpc, cycles="whsc", max_steps=5)
+    x = mpc.estimator.x_.copy()
+    twin = NonlinearMPC(mpc.model, horizon=5, stage_steps=4, estimator=mpc.estimator, solver=mpc.solver,
+                        solver_options=mpc.solver_options)
+    assert twin.estimator is mpc.estimator and np.array_equal(twin.estimator.x_, x)
