@@ -194,7 +194,15 @@ class BlackBoxModel:
         if max(self.measured_obs) >= n_obs:
             raise ValueError("BlackBoxModel with nh3_sensor=True needs UreaSCREnv(nh3_sensor=True)")
 
+    def make_estimator(self) -> BlackBoxEstimator:
+        """The NMPC's state estimator: this model's offset-free EKF (:class:`BlackBoxEstimator`)."""
+        return BlackBoxEstimator(self)
+
     def reset(self, observation: np.ndarray) -> None:
+        """Nothing: the estimate is reset by the estimator (:meth:`reset_estimate`)."""
+
+    def reset_estimate(self, observation: np.ndarray) -> None:
+        """Start the EKF at the model's rest state for the first observation, zero disturbances."""
         obs = np.asarray(observation, float)
         z0 = np.asarray(self.z_norm(0.0, obs[OBS_NOX_IN], obs[OBS_T], obs[OBS_FLOW]), float)
         x0 = np.zeros(self.nx) if self.initial_state_fn is None else np.asarray(self.initial_state_fn(z0), float)
@@ -211,6 +219,25 @@ class BlackBoxModel:
             self.ekf_.step(ua, np.asarray(ym, float))
         self._u_last = ua
         return self.ekf_.x_.copy()
+
+
+class BlackBoxEstimator:
+    """The :class:`~control.estimation.StateEstimator` of a :class:`BlackBoxModel`: its offset-free EKF on the
+    model state and the output disturbances, corrected with the tailpipe sensors; ``make_step`` returns the
+    augmented estimate ``(x, d_nox, d_nh3)``."""
+
+    def __init__(self, model: BlackBoxModel) -> None:
+        self.model = model
+        self.measured_obs = model.measured_obs
+
+    def attach(self, env: Any) -> None:
+        self.model.attach(env)
+
+    def reset(self, observation: np.ndarray) -> None:
+        self.model.reset_estimate(observation)
+
+    def make_step(self, observation: np.ndarray, applied_dose_g_s: float, disturbance: Any = None) -> np.ndarray:
+        return self.model.prepare(observation, applied_dose_g_s)
 
 
 class BlackBoxMPC(NonlinearMPC):
@@ -309,7 +336,7 @@ class BlackBoxMPC(NonlinearMPC):
     def _solve(self, obs: np.ndarray) -> float | None:
         H, nx = self._H, self._nx
         dist = self._disturbances(obs)
-        xa = self.model.prepare(obs, self._u_prev)
+        xa = self.estimator.make_step(obs, self._u_prev, dist[0])
         x0, pd = xa[:nx], xa[nx:nx + 2]
         pv = np.concatenate([x0, dist.ravel(), pd, [self._u_prev]])
         if self._w0 is None:
@@ -339,3 +366,72 @@ class BlackBoxMPC(NonlinearMPC):
         self._plan_age = 0
         self._w0 = wopt
         return float(Uo[0])
+
+
+# ----------------------------------------------------------------------------------------- the loop's NMPCs
+#: stages of the black-box NMPC [control intervals of 0.5 s]: 10 of 2 s then 6 of 10 s (80 s), and in quick mode
+#: 5 of 2 s then 3 of 10 s (40 s) [prototype on calibration cycles 5-8]
+STAGES = (4,) * 10 + (20,) * 6
+QUICK_STAGES = (4,) * 5 + (20,) * 3
+#: estimator and terminal settings per model kind: the disturbance model (RPEM: integrating disturbances on the
+#: rates of its two chain states, which are its outputs; Hammerstein-Wiener: additive output disturbances), process
+#: noise of the model state and of the disturbances, sensor variances (NOx, NH3) [ppm^2], terminal time [s]
+#: [RPEM: prototype on calibration cycles 5-8 (old plant); Hammerstein-Wiener: by analogy, not yet calibrated]
+NMPC_SETTINGS: dict[str, dict[str, Any]] = {
+    "rpem": {"disturbance": "state", "q_state": 1e-4, "q_dist": (1e-5, 1e-5), "r_sensor": (25.0, 4.0),
+             "terminal_s": 120.0},
+    "hammerstein_wiener": {"disturbance": "output", "q_state": 1e-3, "q_dist": (4.0, 1.0), "r_sensor": (25.0, 4.0),
+                           "terminal_s": 120.0},
+}
+#: the ANR band of the planned dose (upper bound, times the feedforward on the stage's NOx flow, plus a floor):
+#: keeps the plan in the region the identification data covered (ANR up to about 1.3 outside short bursts) [chosen]
+ANR_BAND = (0.0, 1.3)
+#: the ablation's ingredients of the black-box NMPC (each can be removed in turn)
+INGREDIENTS = ("nh3_sensor", "preview", "offset_free", "slip_guard", "anr_band")
+
+
+def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_sensor: bool = True,
+                   preview: bool = True, offset_free: bool = True, slip_guard: bool = True, anr_band: bool = True,
+                   **overrides: Any) -> BlackBoxMPC:
+    """The NMPC on a model of :func:`ident.for_control.fit_rpem_for_control` (``info["kind"] == "rpem"``) or
+    :func:`ident.for_control.fit_hw_for_control` (``"hammerstein_wiener"``), with the grey-box's footing: both
+    tailpipe sensors in the (offset-free) estimator, the cycle preview, the slip guard. Each ingredient can be
+    switched off (the ablation); ``overrides`` replace :data:`NMPC_SETTINGS` entries (calibration)."""
+    from control.factory import IDENT_SOLVER, SLIP_GUARD_PPM
+    from ident.for_control import hw_linear_export
+
+    kind = info.get("kind")
+    if kind not in NMPC_SETTINGS:
+        raise ValueError(f"info['kind'] must be one of {sorted(NMPC_SETTINGS)}, got {kind!r}")
+    cfg = {**NMPC_SETTINGS[kind], **overrides}
+    stages = QUICK_STAGES if quick else STAGES
+    common = {"nox_kind": info["nox_kind"], "nh3_kind": info["nh3_kind"], "output_smoothing": 0.0,
+              "disturbance": cfg["disturbance"] if offset_free else "none", "q_dist": cfg["q_dist"],
+              "r_sensor": cfg["r_sensor"], "nh3_sensor": nh3_sensor}
+    features = FeatureMap(tuple(info["features"]))
+    if kind == "rpem":
+        step = model.to_casadi()
+        nx, n_out = int(step.size1_in(0)), 2
+        lo, hi = (np.asarray(b, float) for b in info["state_bounds"])
+        x_init = np.asarray(info["initial_state"], float)
+
+        def initial(z0: np.ndarray) -> np.ndarray:
+            return np.r_[x_init, np.asarray(z0, float)[:nx - n_out]]   # chain states, then the previous input
+
+        bm = BlackBoxModel(step, features, info["z_mean"], info["z_scale"], info["y_mean"], info["y_scale"],
+                           q_state=np.r_[np.full(n_out, cfg["q_state"]), np.zeros(nx - n_out)],
+                           state_bounds=(np.r_[lo, np.full(nx - n_out, -1e6)], np.r_[hi, np.full(nx - n_out, 1e6)]),
+                           initial_state=initial, p0_state=np.r_[np.full(n_out, 0.1), np.zeros(nx - n_out)],
+                           **common)
+    else:
+        step, A, bfun = hw_linear_export(model)
+        nx = A.shape[0]
+        bm = BlackBoxModel(step, features, info["z_mean"], info["z_scale"], info["y_mean"], info["y_scale"],
+                           q_state=cfg["q_state"], state_bounds=(np.full(nx, -1e3), np.full(nx, 1e3)),
+                           initial_state=lambda z0: np.zeros(nx), linear=(A, bfun), **common)
+    kw = dict(IDENT_SOLVER)
+    mpc = BlackBoxMPC(bm, stages=stages, anr_band=ANR_BAND if anr_band else None, preview=preview,
+                      slip_guard=(OBS_NH3_SENSOR, SLIP_GUARD_PPM) if (slip_guard and nh3_sensor) else None,
+                      terminal_s=cfg["terminal_s"], **kw)
+    mpc.env_kwargs = {"nh3_sensor": True} if (nh3_sensor or slip_guard) else {}
+    return mpc

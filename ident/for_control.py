@@ -1,11 +1,17 @@
-"""Fitting and exporting the black-box model classes for the dosing NMPC (issue 18, research prototype).
+"""Identification for control of the dosing loop (issue 18): the RPEM and Hammerstein-Wiener models the black-box
+NMPCs (:mod:`control.blackbox`) run on.
 
-* :func:`fit_hw_outputs`: one Hammerstein-Wiener model per output (Paper IV's structure) fitted on many records
-  at once (concatenated; the first ``warmup`` samples of each record carry zero weight, so the joins between
-  records do not enter the criterion).
-* :func:`hw_stack_export`: the stacked models as one ``Function('step', [x, z], [x_next, y])`` whose output blocks
-  may be smoothed (a saturation ``max(w, lo)`` becomes ``lo + softplus(w - lo)``: the NMPC sees a gradient below
-  the saturation), and the linear part ``(A, z -> B v(z))`` for exact multi-step stages.
+* :func:`identification_records`: control-relevant records (:mod:`ident.control_relevant`) over many random
+  cycles (seeds :data:`IDENT_SEEDS`; never the calibration cycles 5-8 nor the held-out WHTC/WHSC).
+* :func:`fit_rpem_for_control`: the thesis' polynomial chain ODE (RPEM model class) with two outputs (log NOx slip
+  ratio, log NH3) on measured-signal features (stoichiometric surplus, inlet NOx, exp(-a/T), flow), storage-capable
+  regressor products, an equation-error start and an optional multi-step prediction-error refinement.
+* :func:`fit_hw_for_control`: a two-output Hammerstein-Wiener model (static input blocks, linear dynamics, static
+  output blocks) on the same features and outputs, fitted on all records end to end (:func:`concat_records`).
+* :func:`hw_linear_export`: its CasADi step and linear part for exact multi-step NMPC stages.
+
+Black-box boundary (issue 18): no Arrhenius kinetics and no storage balance inside either model; the features are
+static transforms of measured signals (exp(-a/T) as in Paper III).
 """
 from __future__ import annotations
 
@@ -14,9 +20,8 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from scipy.linalg import block_diag
 
-from ident.hammerstein_wiener import HammersteinWiener, Saturation
+from ident.hammerstein_wiener import HammersteinWiener
 
 
 def concat_records(us: Sequence[np.ndarray], ys: Sequence[np.ndarray], warmup: int = 120
@@ -26,51 +31,179 @@ def concat_records(us: Sequence[np.ndarray], ys: Sequence[np.ndarray], warmup: i
     return np.vstack(us), np.vstack(ys), np.concatenate(w)
 
 
-def fit_hw_outputs(u: np.ndarray, y: np.ndarray, weights: np.ndarray, templates: Sequence[HammersteinWiener]
-                   ) -> list[HammersteinWiener]:
-    """Fit ``templates[i]`` (unfitted) on output column i; returns the fitted models."""
-    return [t.fit(u, y[:, [i]], sample_weight=weights) for i, t in enumerate(templates)]
-
-
-def _smooth_output(block: Any, w: Any, p: np.ndarray, eps: float) -> Any:
-    if isinstance(block, Saturation) and eps > 0:
-        lo, hi = block._limits(np.asarray(p, dtype=float))
-        out = w
-        if np.isfinite(lo):
-            d = out - lo
-            out = lo + 0.5 * (d + ca.sqrt(d * d + eps * eps))
-        if np.isfinite(hi):
-            d = hi - out
-            out = hi - 0.5 * (d + ca.sqrt(d * d + eps * eps))
-        return out
-    return block.casadi(w, p)
-
-
-def hw_stack_export(models: Sequence[HammersteinWiener], smooth_eps: float = 0.0
-                    ) -> tuple[ca.Function, np.ndarray, Any]:
-    """``(step, A, bfun)`` of the stacked models (states in model order): ``step(x, z) -> (x_next, y)``,
-    ``x_next = A x + bfun(z)``."""
-    nz = int(models[0].n_inputs_)
-    z = ca.SX.sym("z", nz)
-    As, Bv, ys = [], [], []
-    sizes = [m.n_states_ for m in models]
-    x = ca.SX.sym("x", int(sum(sizes)))
-    k = 0
-    for m, n in zip(models, sizes):
-        v = ca.vertcat(*[b.casadi(z[i], p) for i, (b, p) in enumerate(zip(m.input_blocks_, m.input_params_))])
-        As.append(m.A_)
-        Bv.append(ca.mtimes(ca.DM(m.B_), v))
-        w = ca.mtimes(ca.DM(m.C_), x[k:k + n]) + ca.mtimes(ca.DM(m.D_), v)
-        ys.append(_smooth_output(m.output_block_, w, m.output_params_, smooth_eps))
-        k += n
-    A = block_diag(*As)
-    bv = ca.vertcat(*Bv)
-    step = ca.Function("step", [x, z], [ca.mtimes(ca.DM(A), x) + bv, ca.vertcat(*ys)], ["x", "z"], ["x_next", "y"])
-    bfun_f = ca.Function("bv", [z], [bv])
-    return step, A, lambda zz: bfun_f(zz)
+def hw_linear_export(model: HammersteinWiener) -> tuple[ca.Function, np.ndarray, Any]:
+    """``(step, A, bfun)`` of a fitted :class:`HammersteinWiener`: ``step(x, z) -> (x_next, y)`` (its
+    ``to_casadi``) and the linear part ``x_next = A x + bfun(z)`` (``bfun(z) = B v(z)``, v the input blocks), for
+    exact multi-step stages of the NMPC."""
+    step = model.to_casadi()
+    z = ca.SX.sym("z", model.n_inputs_)
+    v = ca.vertcat(*[b.casadi(z[i], p) for i, (b, p) in
+                     enumerate(zip(model.input_blocks_, model.input_params_, strict=True))])
+    bfun_f = ca.Function("bv", [z], [ca.mtimes(ca.DM(model.B_), v)])
+    return step, np.asarray(model.A_, float), lambda zz: bfun_f(zz)
 
 
 def hw_steady_state(A: np.ndarray, bfun: Any, z: np.ndarray) -> np.ndarray:
     """The state at rest under the held input ``z``: (I - A)^-1 B v(z)."""
     bv = np.asarray(bfun(ca.DM(z))).ravel()
     return np.linalg.solve(np.eye(A.shape[0]) - A, bv)
+
+
+# ------------------------------------------------------------------------------ the production identification
+#: random-cycle seeds of the identification records (calibration cycles are 5-8, held-out cycles the WHTC/WHSC)
+IDENT_SEEDS = tuple(range(10, 18))
+#: random-cycle seed of the validation record (k-step FIT)
+VALIDATION_SEED = 18
+#: the designs of the identification records (:mod:`ident.control_relevant`): open-loop ANR 0.8-1.3 with over-dosing
+#: bursts, and the edge-seeking relay around the slip edge
+DESIGNS = ("open_loop", "edge_seeking")
+#: model inputs: stoichiometric surplus [ppm], inlet NOx [ppm], exp(-a/T) [-], exhaust flow [mol/s]
+CONTROL_FEATURES = ("surplus_ppm", "nox_ppm", "exp_t", "flow")
+#: scale of each feature into order one for the RPEM's polynomial (ppm -> 1e3 ppm; flow mol/s -> 10 mol/s) [chosen]
+RPEM_FEATURE_SCALE = (1e-3, 1e-3, 1.0, 0.1)
+#: outputs: log NOx slip ratio and log NH3 ppm (:mod:`ident.control_relevant`), times this scale [chosen]
+RPEM_OUTPUT_SCALE = (0.2, 0.2)
+NOX_KIND, NH3_KIND = "logratio", "log"
+
+
+def identification_records(seeds: Sequence[int] = IDENT_SEEDS, designs: Sequence[str] = DESIGNS,
+                           duration_s: float | None = None) -> list[Any]:
+    """Control-relevant identification records (:class:`ident.control_relevant.Record`): every design on the random
+    cycle of every seed (``"open_loop"``, ``"edge_seeking"``, or ``"overdosing"``: the single open-loop over-dosing
+    design of :func:`control.loop.black_box_excitation`, the ablation's "no control-relevant excitation")."""
+    from ident.control_relevant import Record, edge_seeking_record, open_loop_record
+
+    out = []
+    for d in designs:
+        for s in seeds:
+            if d == "open_loop":
+                out.append(open_loop_record(int(s), duration_s=duration_s))
+            elif d == "edge_seeking":
+                out.append(edge_seeking_record(int(s), duration_s=duration_s))
+            elif d == "overdosing":
+                from ident.excitation import RandomSteps
+                from ident.plant_data import excitation_dataset
+
+                kw = {} if duration_s is None else {"random_cycle_duration_s": float(duration_s)}
+                ds = excitation_dataset("random", seed=int(s), base_anr=1.0,
+                                        excitation=RandomSteps(-0.9, 1.0, 20.0, 200.0), **kw)
+                out.append(Record(u=ds.u, y=ds.y, nh3_sensor=ds.y[:, 1], dt=ds.dt, meta={"kind": d, "seed": int(s)}))
+            else:
+                raise ValueError(f"designs: unknown design {d!r}; known: open_loop, edge_seeking, overdosing")
+    return out
+
+
+def control_arrays(records: Sequence[Any], features: Sequence[str] = CONTROL_FEATURES
+                   ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per record (features (n, m), outputs (n, 2): log NOx slip ratio, log NH3 ppm), unscaled."""
+    from ident.control_relevant import FeatureMap, nh3_output, nox_output
+
+    fm = FeatureMap(tuple(features))
+    return [(fm.from_record(r.u), np.column_stack([nox_output(NOX_KIND, r.y[:, 0], r.u[:, 0]),
+                                                   nh3_output(NH3_KIND, r.y[:, 1])])) for r in records]
+
+
+def rpem_storage_terms(k: int) -> list[str]:
+    """Candidate regressor of chain ``k`` (1 = NOx, 2 = NH3) of the two-output, one-state-per-chain RPEM: the
+    thesis' polynomial in states and inputs extended with products that can express storage (state x input,
+    state x input x input, input x input) and derivatives of the exogenous inputs (issue 18); inputs as
+    :data:`CONTROL_FEATURES` (u1 surplus, u2 inlet NOx, u3 exp(-a/T), u4 flow)."""
+    o, q = f"x{k}", ("x2" if k == 1 else "x1")
+    t = ["1", o, q, "u1", "u2", "u3", "u4", f"{o}*{q}", f"{o}^2", f"{q}^2"]
+    for x in (o, q):
+        t += [f"{x}*u{j}" for j in (1, 2, 3, 4)]
+    t += ["u1*u3", "u1*u4", "u2*u3", "u2*u4", "u3*u4", f"{o}*u1*u3", f"{o}*u1*u4", f"{q}*u1*u3"]
+    t += ["u3'", "u4'", "u2'", f"{o}*u3'", f"{o}*u4'", f"{o}*u2'"]
+    return t
+
+
+def paper3_terms(k: int) -> list[str]:
+    """The ablation's "no storage regressors": the linear regressor of Paper III per chain (states, inputs, 1)."""
+    return ["1", f"x{k}", ("x2" if k == 1 else "x1"), "u1", "u2", "u3", "u4"]
+
+
+def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, multistep_horizon: int = 0,
+                         max_nfev: int = 10, ridge: float = 1e-4) -> tuple[Any, dict[str, Any]]:
+    """The RPEM for the NMPC: two one-state chains (log NOx slip ratio, log NH3) on :data:`CONTROL_FEATURES`, the
+    regressor :func:`rpem_storage_terms` (or :func:`paper3_terms`), started by the ridge equation-error estimate
+    and, with ``multistep_horizon`` > 0, refined by the multi-step prediction error over that many samples
+    (:func:`ident.rpem.multistep.fit_multistep`, Shook et al. 1991). Returns the fitted
+    :class:`~ident.rpem.RecursivePEM` (inputs: scaled features) and the JSON-able description the NMPC needs."""
+    from ident.rpem import RecursivePEM
+    from ident.rpem.multistep import fit_multistep, rpem_from_theta
+
+    zs, ys = np.asarray(RPEM_FEATURE_SCALE), np.asarray(RPEM_OUTPUT_SCALE)
+    recs = [(z * zs, y * ys) for z, y in control_arrays(records)]
+    terms = [rpem_storage_terms(k) if storage_terms else paper3_terms(k) for k in (1, 2)]
+    tmpl = RecursivePEM(n_states=1, terms=terms, sampling_period=float(records[0].dt), alpha=1.0)
+    tmpl._setup(len(CONTROL_FEATURES), 2)
+    s = tmpl.structure_
+    theta = np.zeros(s.n_params)
+    for k in range(2):
+        rows = np.flatnonzero(s.owner == k)
+        E = s.exponents[rows]
+        A, b = [], []
+        for z, y in recs:
+            WS, _, _, _ = tmpl._rows(z, carry=False)
+            v = np.column_stack([y[:-1], WS[1:]])
+            A.append(np.prod(v[:, None, :] ** E[None], axis=2))
+            b.append((y[1:, k] - y[:-1, k]) / tmpl.ts_model)
+        A, b = np.vstack(A), np.concatenate(b)
+        theta[rows] = np.linalg.solve(A.T @ A + ridge * len(b) * np.eye(len(rows)), A.T @ b)
+    if multistep_horizon > 0:
+        theta = fit_multistep(tmpl, recs, horizon=int(multistep_horizon), theta0=theta, ridge=1e-5, max_nfev=max_nfev)
+    model = rpem_from_theta(tmpl, theta, len(CONTROL_FEATURES), 2)
+    lo = ys * np.log([1e-4, 1e-2]) - 0.2   # log floors of the outputs (ident.control_relevant), a margin below
+    hi = ys * np.log([2.0, 5000.0])         # NOx ratio 2, NH3 5000 ppm
+    info = {"kind": "rpem", "features": list(CONTROL_FEATURES), "z_mean": [0.0] * len(zs),
+            "z_scale": (1.0 / zs).tolist(), "y_mean": [0.0, 0.0], "y_scale": (1.0 / ys).tolist(),
+            "nox_kind": NOX_KIND, "nh3_kind": NH3_KIND, "state_bounds": [lo.tolist(), hi.tolist()],
+            "initial_state": (ys * np.log([1.0, 1e-2])).tolist(), "terms": [list(t) for t in terms],
+            "multistep_horizon": int(multistep_horizon), "n_records": len(records)}
+    return model, info
+
+
+def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots: int = 5, max_nfev: int = 40
+                       ) -> tuple[Any, dict[str, Any]]:
+    """The Hammerstein-Wiener model for the NMPC: one two-output model (log NOx slip ratio, log NH3) on the
+    standardised :data:`CONTROL_FEATURES`, piecewise-linear input blocks (identity on the surplus, which enters
+    both signs), linear dynamics, identity output blocks (the log outputs carry the spill-over's nonlinearity), on
+    the records end to end (each record's first minute unweighted). Returns the fitted model and its description."""
+    from ident.hammerstein_wiener import HammersteinWiener
+    from ident.hammerstein_wiener.blocks import Identity, PiecewiseLinear
+
+    arrs = control_arrays(records)
+    Z = np.vstack([z for z, _ in arrs])
+    zm, zsd = Z.mean(axis=0), Z.std(axis=0)
+    zm[0] = 0.0   # the surplus keeps its zero (no dose, no surplus)
+    Uc, Yc, W = concat_records([(z - zm) / zsd for z, _ in arrs], [y for _, y in arrs], warmup=120)
+    ym, ysd = Yc.mean(axis=0), Yc.std(axis=0)
+    blocks = [Identity() if f.startswith("surplus") else PiecewiseLinear(n_knots) for f in CONTROL_FEATURES]
+    model = HammersteinWiener(input_blocks=blocks, output_block=Identity(), nb=nb, nf=nf, nk=1, max_nfev=max_nfev,
+                              initial="zero").fit(Uc, (Yc - ym) / ysd, sample_weight=W)
+    info = {"kind": "hammerstein_wiener", "features": list(CONTROL_FEATURES), "z_mean": zm.tolist(),
+            "z_scale": zsd.tolist(), "y_mean": ym.tolist(), "y_scale": ysd.tolist(), "nox_kind": NOX_KIND,
+            "nh3_kind": NH3_KIND, "nb": nb, "nf": nf, "n_records": len(records)}
+    return model, info
+
+
+def k_step_fit(step: Any, info: dict[str, Any], record: Any, horizon: int) -> list[float]:
+    """FIT [%] of the ``horizon``-step predictions (windows of that length; an RPEM restarted from the measured
+    outputs, a Hammerstein-Wiener model from rest) of the exported ``step(x, z)`` on one record, per output (log domain)."""
+    from ident.metrics import fit_percent
+
+    (z, y), = control_arrays([record], info["features"])
+    zn = (z - np.asarray(info["z_mean"])) / np.asarray(info["z_scale"])
+    nx = int(step.size1_in(0))
+    f = step.mapaccum(horizon)
+    pred = np.full_like(y, np.nan)
+    ym, ysd = np.asarray(info["y_mean"]), np.asarray(info["y_scale"])
+    for t0 in range(0, len(z) - horizon, horizon):
+        xs = np.zeros(nx)
+        if info["kind"] == "rpem":   # the chain states are the outputs: start from the measured ones, then (input
+            xs[:y.shape[1]] = (y[t0] - ym) / ysd   # derivatives) the previous input
+            xs[y.shape[1]:] = zn[t0][:nx - y.shape[1]]
+        _, yy = f(xs, zn[t0:t0 + horizon].T)
+        pred[t0:t0 + horizon] = np.asarray(yy).T * ysd + ym
+    ok = ~np.isnan(pred[:, 0])
+    return [float(fit_percent(y[ok, j], pred[ok, j])) for j in range(y.shape[1])]
