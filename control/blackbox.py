@@ -68,7 +68,8 @@ class BlackBoxModel:
 
     def __init__(self, step: ca.Function, features: FeatureMap, z_mean: Sequence[float], z_scale: Sequence[float],
                  y_mean: Sequence[float], y_scale: Sequence[float], nox_kind: str = "ppm",
-                 out_idx: tuple[int, int] = (0, 1), disturbance: str = "output", q_state: float | Sequence[float] = 1e-4,
+                 out_idx: tuple[int, int] = (0, 1), disturbance: str = "output",
+                 q_state: float | Sequence[float] = 1e-4,
                  q_dist: tuple[float, float] = (4.0, 1.0), r_sensor: tuple[float, float] = (100.0, 25.0),
                  nh3_sensor: bool = True, state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
                  initial_state: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -115,7 +116,8 @@ class BlackBoxModel:
         qx = np.broadcast_to(np.asarray(q_state, float), (self.nx,))
         qd = np.asarray(q_dist, float) if disturbance != "none" else np.zeros(2)
         r = np.asarray(r_sensor, float)[: (2 if self.nh3_sensor else 1)]
-        blo = np.r_[self._bounds[0], -np.inf, -np.inf] if disturbance != "gain" else np.r_[self._bounds[0], -0.95, -np.inf]
+        blo = (np.r_[self._bounds[0], -np.inf, -np.inf] if disturbance != "gain"
+               else np.r_[self._bounds[0], -0.95, -np.inf])
         bhi = np.r_[self._bounds[1], np.inf, np.inf]
         p0x = np.broadcast_to(np.asarray(p0_state, float), (self.nx,))
         self.output_smoothing = output_smoothing
@@ -251,7 +253,8 @@ class BlackBoxMPC(NonlinearMPC):
         ``band_floor_g_s`` (None: no band). ``lo`` applies only where the band is feasible with the rate limit.
     """
 
-    def __init__(self, model: BlackBoxModel, stages: Sequence[int] = (4,) * 20, anr_band: tuple[float, float] | None = None,
+    def __init__(self, model: BlackBoxModel, stages: Sequence[int] = (4,) * 20,
+                 anr_band: tuple[float, float] | None = None,
                  band_floor_g_s: float = 0.05, terminal_s: float = 0.0, terminal_slip_ppm: float | None = None,
                  **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)

@@ -318,8 +318,8 @@ def closed_loop_record(policy: Any, seed: int, dither: float = 0.1, dither_hold_
     identification's source of information that is uncorrelated with the noise, issue 18 trap 1)."""
     from control.protocol import action_to_rate, rate_to_action
     from ident.excitation import RandomSteps
-    from scr_env.rollout import SIGNALS, Trajectory
     from scr_env.envs.urea_scr import UreaSCREnv
+    from scr_env.rollout import SIGNALS, Trajectory
 
     kw = dict(env_kwargs or {})
     kw["nh3_sensor"] = True

@@ -122,45 +122,99 @@ def paper3_terms(k: int) -> list[str]:
     return ["1", f"x{k}", ("x2" if k == 1 else "x1"), "u1", "u2", "u3", "u4"]
 
 
-def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, multistep_horizon: int = 0,
-                         max_nfev: int = 10, ridge: float = 1e-4) -> tuple[Any, dict[str, Any]]:
-    """The RPEM for the NMPC: two one-state chains (log NOx slip ratio, log NH3) on :data:`CONTROL_FEATURES`, the
-    regressor :func:`rpem_storage_terms` (or :func:`paper3_terms`), started by the ridge equation-error estimate
-    and, with ``multistep_horizon`` > 0, refined by the multi-step prediction error over that many samples
-    (:func:`ident.rpem.multistep.fit_multistep`, Shook et al. 1991). Returns the fitted
-    :class:`~ident.rpem.RecursivePEM` (inputs: scaled features) and the JSON-able description the NMPC needs."""
+#: numbers of storage terms per chain the term selection tries, beyond Paper III's linear regressor [chosen]
+EXTRA_TERM_COUNTS = (0, 2, 4, 6, 9)
+#: the multi-step horizon of the term selection [samples of 0.5 s]: 80 s, the NMPC's horizon
+SELECTION_HORIZON = 160
+
+
+def _equation_error(tmpl: Any, recs: Sequence[tuple[np.ndarray, np.ndarray]], k: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(Phi, b) of chain k's equation error (Euler difference quotient against the terms at the measured outputs)."""
+    s = tmpl.structure_
+    E = s.exponents[np.flatnonzero(s.owner == k)]
+    A, b = [], []
+    for z, y in recs:
+        WS, _, _, _ = tmpl._rows(z, carry=False)
+        v = np.column_stack([y[:-1], WS[1:]])
+        A.append(np.prod(v[:, None, :] ** E[None], axis=2))
+        b.append((y[1:, k] - y[:-1, k]) / tmpl.ts_model)
+    return np.vstack(A), np.concatenate(b)
+
+
+def _rpem_ls(terms: list[list[str]], recs: Sequence[tuple[np.ndarray, np.ndarray]], dt: float, ridge: float
+             ) -> tuple[Any, np.ndarray]:
     from ident.rpem import RecursivePEM
+
+    tmpl = RecursivePEM(n_states=1, terms=terms, sampling_period=dt, alpha=1.0)
+    tmpl._setup(len(CONTROL_FEATURES), 2)
+    theta = np.zeros(tmpl.structure_.n_params)
+    for k in range(2):
+        A, b = _equation_error(tmpl, recs, k)
+        theta[tmpl.structure_.owner == k] = np.linalg.solve(A.T @ A + ridge * len(b) * np.eye(A.shape[1]), A.T @ b)
+    return tmpl, theta
+
+
+def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, validation: Sequence[Any] | None = None,
+                         multistep_horizon: int = 0, max_nfev: int = 10, ridge: float = 1e-3
+                         ) -> tuple[Any, dict[str, Any]]:
+    """The RPEM for the NMPC: two one-state chains (log NOx slip ratio, log NH3) on :data:`CONTROL_FEATURES`.
+
+    The regressor of each chain is Paper III's linear one (:func:`paper3_terms`) plus, with ``storage_terms``, the
+    storage-capable candidates of :func:`rpem_storage_terms` in the order of the thesis' forward selection
+    (orthogonal least squares on the equation error), as many as :data:`EXTRA_TERM_COUNTS` allows with the best
+    multi-step prediction FIT over :data:`SELECTION_HORIZON` samples on the ``validation`` records (default: the
+    last record; Shook, Mohtadi and Shah 1991: the predictor the NMPC uses). Parameters: ridge equation-error
+    estimate, refined with ``multistep_horizon`` > 0 by the multi-step prediction error
+    (:func:`ident.rpem.multistep.fit_multistep`). Returns the fitted :class:`~ident.rpem.RecursivePEM` (inputs:
+    scaled features) and the JSON-able description the NMPC needs."""
     from ident.rpem.multistep import fit_multistep, rpem_from_theta
+    from ident.rpem.storage_terms import ols_order
 
     zs, ys = np.asarray(RPEM_FEATURE_SCALE), np.asarray(RPEM_OUTPUT_SCALE)
     recs = [(z * zs, y * ys) for z, y in control_arrays(records)]
-    terms = [rpem_storage_terms(k) if storage_terms else paper3_terms(k) for k in (1, 2)]
-    tmpl = RecursivePEM(n_states=1, terms=terms, sampling_period=float(records[0].dt), alpha=1.0)
-    tmpl._setup(len(CONTROL_FEATURES), 2)
-    s = tmpl.structure_
-    theta = np.zeros(s.n_params)
-    for k in range(2):
-        rows = np.flatnonzero(s.owner == k)
-        E = s.exponents[rows]
-        A, b = [], []
-        for z, y in recs:
-            WS, _, _, _ = tmpl._rows(z, carry=False)
-            v = np.column_stack([y[:-1], WS[1:]])
-            A.append(np.prod(v[:, None, :] ** E[None], axis=2))
-            b.append((y[1:, k] - y[:-1, k]) / tmpl.ts_model)
-        A, b = np.vstack(A), np.concatenate(b)
-        theta[rows] = np.linalg.solve(A.T @ A + ridge * len(b) * np.eye(len(rows)), A.T @ b)
-    if multistep_horizon > 0:
-        theta = fit_multistep(tmpl, recs, horizon=int(multistep_horizon), theta0=theta, ridge=1e-5, max_nfev=max_nfev)
-    model = rpem_from_theta(tmpl, theta, len(CONTROL_FEATURES), 2)
+    dt = float(records[0].dt)
+    base = [paper3_terms(k) for k in (1, 2)]
+    candidates = [base]
+    selection: dict[str, Any] = {}
+    if storage_terms:
+        full = [rpem_storage_terms(k) for k in (1, 2)]
+        tmpl, _ = _rpem_ls(full, recs, dt, ridge)
+        order = []
+        for k in range(2):
+            A, b = _equation_error(tmpl, recs, k)
+            forced = [full[k].index(t) for t in base[k]]
+            order.append([full[k][i] for i in ols_order(A, b, A.shape[1], forced=forced)])
+        candidates = [[o[:len(base[k]) + n] for k, o in enumerate(order)] for n in EXTRA_TERM_COUNTS]
+    val = list(validation) if validation is not None else list(records[-1:])
+    best = None
+    for terms in candidates:
+        tmpl, theta = _rpem_ls(terms, recs, dt, ridge)
+        if multistep_horizon > 0:
+            theta = fit_multistep(tmpl, recs, horizon=int(multistep_horizon), theta0=theta, ridge=1e-5,
+                                  max_nfev=max_nfev)
+        model = rpem_from_theta(tmpl, theta, len(CONTROL_FEATURES), 2)
+        info = _rpem_info(terms, zs, ys, multistep_horizon, len(records))
+        score = np.mean([k_step_fit(model.to_casadi(), info, r, SELECTION_HORIZON) for r in val]) if storage_terms \
+            else 0.0
+        score = float(score) if np.isfinite(score) else -np.inf
+        selection[str(len(terms[0]) - len(base[0]))] = score
+        if best is None or score > best[0]:
+            best = (score, model, info)
+    _, model, info = best
+    info["selection_kstep_fit_percent"] = selection
+    return model, info
+
+
+def _rpem_info(terms: list[list[str]], zs: np.ndarray, ys: np.ndarray, multistep_horizon: int, n_records: int
+               ) -> dict[str, Any]:
     lo = ys * np.log([1e-4, 1e-2]) - 0.2   # log floors of the outputs (ident.control_relevant), a margin below
     hi = ys * np.log([2.0, 5000.0])         # NOx ratio 2, NH3 5000 ppm
-    info = {"kind": "rpem", "features": list(CONTROL_FEATURES), "z_mean": [0.0] * len(zs),
+    return {"kind": "rpem", "features": list(CONTROL_FEATURES), "z_mean": [0.0] * len(zs),
             "z_scale": (1.0 / zs).tolist(), "y_mean": [0.0, 0.0], "y_scale": (1.0 / ys).tolist(),
             "nox_kind": NOX_KIND, "nh3_kind": NH3_KIND, "state_bounds": [lo.tolist(), hi.tolist()],
             "initial_state": (ys * np.log([1.0, 1e-2])).tolist(), "terms": [list(t) for t in terms],
-            "multistep_horizon": int(multistep_horizon), "n_records": len(records)}
-    return model, info
+            "multistep_horizon": int(multistep_horizon), "n_records": n_records}
 
 
 def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots: int = 5, max_nfev: int = 40
@@ -189,7 +243,8 @@ def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots
 
 def k_step_fit(step: Any, info: dict[str, Any], record: Any, horizon: int) -> list[float]:
     """FIT [%] of the ``horizon``-step predictions (windows of that length; an RPEM restarted from the measured
-    outputs, a Hammerstein-Wiener model from rest) of the exported ``step(x, z)`` on one record, per output (log domain)."""
+    outputs, a Hammerstein-Wiener model from rest) of the exported ``step(x, z)`` on one record, per output (log
+    domain); NaN where the predictions diverge."""
     from ident.metrics import fit_percent
 
     (z, y), = control_arrays([record], info["features"])
@@ -206,4 +261,6 @@ def k_step_fit(step: Any, info: dict[str, Any], record: Any, horizon: int) -> li
         _, yy = f(xs, zn[t0:t0 + horizon].T)
         pred[t0:t0 + horizon] = np.asarray(yy).T * ysd + ym
     ok = ~np.isnan(pred[:, 0])
-    return [float(fit_percent(y[ok, j], pred[ok, j])) for j in range(y.shape[1])]
+    # a prediction that leaves the float range is a diverged model: FIT NaN (reported, not raised)
+    return [float(fit_percent(y[ok, j], pred[ok, j])) if np.all(np.isfinite(pred[ok, j])) else float("nan")
+            for j in range(y.shape[1])]

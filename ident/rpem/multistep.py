@@ -66,7 +66,8 @@ def windows(n: int, horizon: int, stride: int, skip: int = 0) -> np.ndarray:
 
 
 def fit_multistep(est: RecursivePEM, records: Sequence[tuple[np.ndarray, np.ndarray]], horizon: int = 80,
-                  stride: int | None = None, theta0: np.ndarray | None = None, output_weights: Sequence[float] | None = None,
+                  stride: int | None = None, theta0: np.ndarray | None = None,
+                  output_weights: Sequence[float] | None = None,
                   ridge: float = 1e-4, max_nfev: int = 50, skip: int = 0, verbose: bool = False) -> np.ndarray:
     """The multi-step prediction-error estimate (module docstring) of ``est``'s structure on ``records`` [(u, y)].
 

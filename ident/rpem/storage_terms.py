@@ -71,7 +71,7 @@ def regressor_matrix(est: RecursivePEM, k: int, terms: Sequence[str], records: S
 def ols_order(Phi: np.ndarray, b: np.ndarray, max_terms: int, forced: Sequence[int] = ()) -> list[int]:
     """Forward orthogonal least squares (Billings' error reduction ratio): the column indices in the order they are
     selected, starting with ``forced``."""
-    n, p = Phi.shape
+    p = Phi.shape[1]
     chosen = list(forced)
     Q = []
     for j in chosen:
