@@ -380,14 +380,19 @@ QUICK_STAGES = (4,) * 5 + (20,) * 3
 #: rates of its two chain states, which are its outputs; Hammerstein-Wiener: additive output disturbances), process
 #: noise of the model state and of the disturbances, sensor variances (NOx, NH3) [ppm^2], terminal time [s]
 #: [RPEM: prototype on calibration cycles 5-8 (old plant); Hammerstein-Wiener: by analogy, not yet calibrated]
+#: and the upper ANR of the dose band (:data:`ANR_BAND`).
+#: [disturbance model, noise, terminal time: prototype on calibration cycles 5-8 (old plant); the band: chosen by
+#: ``python -m experiments.calibrate_black_box --seeds 5 6 --duration 600`` with ``--configs`` over anr_band_hi
+#: (1.3, 2, 3; RPEM also terminal_s 0 and q_dist 1e-4), the rule of calibrate_controllers (new plant)]
 NMPC_SETTINGS: dict[str, dict[str, Any]] = {
     "rpem": {"disturbance": "state", "q_state": 1e-4, "q_dist": (1e-5, 1e-5), "r_sensor": (25.0, 4.0),
-             "terminal_s": 120.0},
+             "terminal_s": 120.0, "anr_band_hi": 3.0},
     "hammerstein_wiener": {"disturbance": "output", "q_state": 1e-3, "q_dist": (4.0, 1.0), "r_sensor": (25.0, 4.0),
-                           "terminal_s": 120.0},
+                           "terminal_s": 120.0, "anr_band_hi": 3.0},
 }
-#: the ANR band of the planned dose (upper bound, times the feedforward on the stage's NOx flow, plus a floor):
-#: keeps the plan in the region the identification data covered (ANR up to about 1.3 outside short bursts) [chosen]
+#: the ANR band of the planned dose (lower, upper: times the feedforward on the stage's NOx flow, plus a floor of
+#: 0.05 g/s): keeps the plan near the region the identification data covered; the upper value per model in
+#: :data:`NMPC_SETTINGS`
 ANR_BAND = (0.0, 1.3)
 #: the ablation's ingredients of the black-box NMPC (each can be removed in turn)
 INGREDIENTS = ("nh3_sensor", "preview", "offset_free", "slip_guard", "anr_band")
@@ -399,7 +404,8 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
     """The NMPC on a model of :func:`ident.for_control.fit_rpem_for_control` (``info["kind"] == "rpem"``) or
     :func:`ident.for_control.fit_hw_for_control` (``"hammerstein_wiener"``), with the grey-box's footing: both
     tailpipe sensors in the (offset-free) estimator, the cycle preview, the slip guard. Each ingredient can be
-    switched off (the ablation); ``overrides`` replace :data:`NMPC_SETTINGS` entries (calibration)."""
+    switched off (the ablation); ``overrides`` replace :data:`NMPC_SETTINGS` entries, and ``anr_band_hi`` the upper
+    ANR of :data:`ANR_BAND` (calibration: ``python -m experiments.calibrate_black_box``)."""
     from control.factory import IDENT_SOLVER, SLIP_GUARD_PPM
     from ident.for_control import hw_linear_export
 
@@ -433,7 +439,8 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
                            q_state=cfg["q_state"], state_bounds=(np.full(nx, -1e3), np.full(nx, 1e3)),
                            initial_state=lambda z0: np.zeros(nx), linear=(A, bfun), **common)
     kw = dict(IDENT_SOLVER)
-    mpc = BlackBoxMPC(bm, stages=stages, anr_band=ANR_BAND if anr_band else None, preview=preview,
+    band = (ANR_BAND[0], float(cfg.get("anr_band_hi", ANR_BAND[1])))
+    mpc = BlackBoxMPC(bm, stages=stages, anr_band=band if anr_band else None, preview=preview,
                       slip_guard=(OBS_NH3_SENSOR, SLIP_GUARD_PPM) if (slip_guard and nh3_sensor) else None,
                       terminal_s=cfg["terminal_s"], **kw)
     mpc.env_kwargs = {"nh3_sensor": True} if (nh3_sensor or slip_guard) else {}
