@@ -383,12 +383,12 @@ QUICK_STAGES = (4,) * 5 + (20,) * 3
 #: and the upper ANR of the dose band (:data:`ANR_BAND`).
 #: [disturbance model, noise, terminal time: prototype on calibration cycles 5-8 (old plant); the band: chosen by
 #: ``python -m experiments.calibrate_black_box --seeds 5 6 --duration 600`` with ``--configs`` over anr_band_hi
-#: (1.3, 2, 3; RPEM also terminal_s 0 and q_dist 1e-4), the rule of calibrate_controllers (new plant)]
+#: (1.3, 2, 3, 6; RPEM also terminal_s 0 / 240 and q_dist 1e-4), the rule of calibrate_controllers (new plant)]
 NMPC_SETTINGS: dict[str, dict[str, Any]] = {
     "rpem": {"disturbance": "state", "q_state": 1e-4, "q_dist": (1e-5, 1e-5), "r_sensor": (25.0, 4.0),
-             "terminal_s": 120.0, "anr_band_hi": 3.0},
+             "terminal_s": 120.0, "anr_band_hi": 6.0},
     "hammerstein_wiener": {"disturbance": "output", "q_state": 1e-3, "q_dist": (4.0, 1.0), "r_sensor": (25.0, 4.0),
-                           "terminal_s": 120.0, "anr_band_hi": 3.0},
+                           "terminal_s": 120.0, "anr_band_hi": 6.0},
 }
 #: the ANR band of the planned dose (lower, upper: times the feedforward on the stage's NOx flow, plus a floor of
 #: 0.05 g/s): keeps the plan near the region the identification data covered; the upper value per model in
