@@ -91,3 +91,20 @@ def test_gap_closed_over_seeds_is_the_seed_mean_and_needs_every_seed_within_the_
     assert gaps["rpem"]["whtc"] == pytest.approx(0.5)          # mean of 0.5 and 0.5
     assert "hammerstein_wiener" not in gaps
     assert excluded[0]["model"] == "hammerstein_wiener" and "1 of 2 seeds" in excluded[0]["reason"]
+
+
+def test_slip_cap_doses_nothing_while_the_nh3_sensor_reads_above_the_guard(models: dict) -> None:
+    from control.protocol import action_to_rate
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    policy = loop_controller("mpc_rpem", None, models, quick=True)
+    env = UreaSCREnv(cycle=cycle_segment("whtc", 40.0), nh3_sensor=True)
+    obs, _ = env.reset(seed=0)
+    policy.attach(env)
+    for k in range(3):
+        obs = np.asarray(obs, float).copy()
+        obs[5] = 50.0                          # the tailpipe NH3 sensor reads 50 ppm
+        action, _ = policy.predict(obs, None, episode_start=np.array([k == 0]))
+        assert action_to_rate(action, env.max_rate_g_s) == pytest.approx(0.0, abs=1e-9)
+        obs, *_ = env.step(action)
+    assert "slip_capped_steps" in policy.stats()
