@@ -31,6 +31,7 @@ TABLE_KPIS: dict[str, str] = {
     "mean_nh3_slip_ppm": "ppm",
     "peak_nh3_slip_ppm": "ppm",
     "adblue_g": "g",
+    "command_total_variation_g_s_per_h": "g/s per h",  # chatter (scr_env.envs.kpis)
 }
 
 #: signals recorded per step when ``record_trajectory=True``, with their units
@@ -272,6 +273,7 @@ def comparison_table(results: Iterable[EpisodeResult] | dict, kpis: Iterable[str
     cols += [k for k in extra if k in present and k not in cols]
     short = {"nox_conversion": "conv", "engine_out_nox_g_per_kwh": "EO g/kWh", "tailpipe_nox_g_per_kwh": "TP g/kWh",
              "mean_nh3_slip_ppm": "NH3 mean", "peak_nh3_slip_ppm": "NH3 peak", "adblue_g": "AdBlue g",
+             "command_total_variation_g_s_per_h": "chatter",
              "policy_time_ms_median": "ms med", "policy_time_ms_p95": "ms p95", "solver_failures": "fails",
              "solve_time_ms_median": "solve med", "solve_time_ms_p95": "solve p95"}
     head = ["cycle", "controller"] + [short.get(c, c) for c in cols]

@@ -164,3 +164,41 @@ def ageing_figures(doc: Mapping[str, Any], history: np.ndarray, out: str | Path,
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return paths
+
+
+def learning_curve_figure(curves: Mapping[str, Sequence[Mapping[str, Any]]], title: str) -> Any:
+    """Learning curves of benchmark baselines: per method (key), the metadata of its seeds' policies. RL methods
+    (``learning_curve`` with ``timesteps``): the training episodes' tailpipe NOx and mean slip against environment
+    steps, one line per seed, and the validated checkpoints (``selection.candidates``) as markers; BC (``epoch``,
+    ``mse``): its training loss. Returns the matplotlib figure (three panels)."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, (method, metas) in enumerate(sorted(curves.items())):
+        c = colours[i % len(colours)]
+        for j, meta in enumerate(metas):
+            curve = meta.get("learning_curve") or {}
+            label = method if j == 0 else None
+            rows = (meta.get("selection") or {}).get("candidates") or []
+            if rows:
+                axes[0].plot([r["timesteps"] for r in rows], [r["tailpipe_nox_g_per_kwh_mean"] for r in rows], "o",
+                             color=c, ms=4, label=label if not curve.get("timesteps") else None)
+                axes[1].plot([r["timesteps"] for r in rows], [r["mean_nh3_slip_ppm_max"] for r in rows], "o",
+                             color=c, ms=4)
+            if curve.get("timesteps"):
+                axes[0].plot(curve["timesteps"], curve["tailpipe_nox_g_per_kwh"], color=c, alpha=0.6, label=label)
+                axes[1].plot(curve["timesteps"], curve["mean_nh3_slip_ppm"], color=c, alpha=0.6, label=label)
+            elif "epoch" in curve:
+                axes[2].plot(curve["epoch"], curve["mse"], color=c, alpha=0.6, label=label)
+    axes[0].set(xlabel="environment steps", ylabel="tailpipe NOx [g/kWh]",
+                title="training episodes (lines), validation (dots)")
+    axes[1].axhline(EURO_VI_NH3_SLIP_LIMIT_PPM, color="k", ls="--", lw=0.8)
+    axes[1].set(xlabel="environment steps", ylabel="mean NH3 slip [ppm]", yscale="symlog",
+                title="slip (validation: worst cycle)")
+    axes[2].set(xlabel="epoch", ylabel="MSE of the action", yscale="log", title="behaviour cloning")
+    for ax in axes:
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig

@@ -12,6 +12,8 @@ Training runs on the native vector environment (``cycle="random"``, random start
 Checkpoint selection (validation, not the test cycles): every checkpoint and the final policy run four hot-start
 random cycles of 3600 s (reset seeds 1001-1004, :data:`VALIDATION_SEEDS`); the policy shipped is the one with the
 lowest mean tailpipe NOx among those whose worst mean slip there is at most 10 ppm (``--no-select``: the final one).
+If none is within the limit, the run says so loudly, marks the report ``within_slip_limit: false`` and does not ship
+(``--ship-over-limit`` overrides).
 Long training drifts towards storing NH3 at mid temperatures (more conversion now) and releasing it later; the
 validation catches that, the training return does not. ``--select-from RUN_FOLDER`` redoes the selection and the
 evaluation of a finished run. The evaluation uses :func:`control.evaluation.evaluate` on the WHTC and WHSC
@@ -62,6 +64,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--json", type=Path, default=None, help="write the evaluation KPIs and wall time here")
     p.add_argument("--name", default=None, help="policy name (default: the algorithm)")
     p.add_argument("--ship", action="store_true", help="also write the policy to control/policies/")
+    p.add_argument("--ship-over-limit", action="store_true", help="ship even if no checkpoint is within the limit")
     p.add_argument("--n-stack", type=int, default=4, help="observation history length of the pipeline")
     p.add_argument("--action", choices=("rate", "anr"), default="rate",
                    help="policy action: the AdBlue rate (env action) or an NH3-to-NOx ratio on the feed-forward")
@@ -143,8 +146,10 @@ def main(argv: list[str] | None = None) -> dict:
                              f"slip <= {VALIDATION_SLIP_LIMIT_PPM} ppm (else lowest worst slip)",
                      "validation_cycles": f"random cycles of {VALIDATION_DURATION_S:.0f} s, hot start, reset seeds "
                                           f"{list(VALIDATION_SEEDS)} (never the WHTC/WHSC)",
-                     "chosen": str(chosen), "chosen_timesteps": best["timesteps"], "candidates": rows}
-        print(f"selected {chosen.name} ({best['timesteps']} steps)")
+                     "chosen": str(chosen), "chosen_timesteps": best["timesteps"], "candidates": rows,
+                     "within_slip_limit": best["within_slip_limit"]}
+        print(f"selected {chosen.name} ({best['timesteps']} steps)" + ("" if best["within_slip_limit"] else
+                                                                          " -- OVER THE SLIP LIMIT"))
     json_path = install(chosen, out / "selected", name, {
         "command": command if args.select_from is None else json.loads(final_json.read_text())["command"],
         "selection_command": command if args.select_from is not None else None,
@@ -176,7 +181,10 @@ def main(argv: list[str] | None = None) -> dict:
                                   for k in summary[c]} for c in cycles}
     meta_all["evaluation_seeds"] = list(seeds)
     write_json(json_path, meta_all)
-    if args.ship:
+    if args.ship and selection.get("within_slip_limit", True) is False and not args.ship_over_limit:
+        print(f"NOT SHIPPED: no checkpoint within {VALIDATION_SLIP_LIMIT_PPM:g} ppm (--ship-over-limit to force)",
+              file=sys.stderr)
+    elif args.ship:
         report["shipped"] = str(install(json_path, POLICY_DIR, name, {}))
     write_json(out / "report.json", report)
     if args.json:

@@ -1,7 +1,8 @@
 """scr_env: a first-principles SCR catalyst simulator for urea-dosing control, as a Gymnasium environment.
 
 Importing the package registers ``scr_env/UreaSCR-v0`` (single environment, ``UreaSCREnv``) with a native vector
-entry point (``UreaSCRVectorEnv``)::
+entry point (``UreaSCRVectorEnv``), and the benchmark tasks ``scr_env/UreaSCR-WHTC-v0``, ``-WHSC-v0``, ``-Aged-v0``,
+``-Randomised-v0`` (:mod:`scr_env.tasks`, scored by :mod:`scr_env.benchmark`)::
 
     import gymnasium as gym
     import scr_env  # noqa: F401  (registers the environment)
@@ -35,12 +36,16 @@ if ENV_ID not in registry:
         vector_entry_point="scr_env.envs.vector:UreaSCRVectorEnv",
     )
 
-_SUBMODULES = ("casadi_model", "constants", "cycles", "engine", "envs", "installation", "jit", "lab", "params",
-               "physics", "rollout", "startup", "wrappers")
+from scr_env.tasks import MAIN_TASKS, TASKS, register_tasks
+
+register_tasks()  # the benchmark tasks scr_env/UreaSCR-<task>-v0 (scr_env.tasks)
+
+_SUBMODULES = ("actuator", "benchmark", "casadi_model", "constants", "cycles", "engine", "envs", "installation", "jit",
+               "lab", "params", "physics", "rollout", "startup", "tasks", "wrappers")
 
 __all__ = [
-    "ENV_ID", "CatalystParams", "DosingParams", "ExhaustTrace", "SensorParams", "aged", "available_cycles",
-    "catalyst_preset", "load_cycle", "random_cycle",
+    "ENV_ID", "MAIN_TASKS", "TASKS", "CatalystParams", "DosingParams", "ExhaustTrace", "SensorParams", "aged",
+    "available_cycles", "catalyst_preset", "load_cycle", "random_cycle",
 ]
 
 

@@ -44,7 +44,7 @@ from scr_env.constants import UREA_G_MIN_PER_ADBLUE_G_S
 from scr_env.cycles import ExhaustTrace
 from scr_env.envs.config import make_config
 from scr_env.envs.core import OBS_BASE, OBS_BASE_HIGH, OBS_BASE_LOW
-from scr_env.envs.kpis import N_ACC, N_TERMS, account_batch, episode_kpis
+from scr_env.envs.kpis import N_ACC, N_TERMS, account_batch, account_commands, episode_kpis
 from scr_env.physics import kernel as K
 
 __all__ = [
@@ -206,6 +206,7 @@ class _Batch:
         self.out[:, K.O_NO] = nox  # the model's tailpipe NOx, counted as NO (the reward does not split NO/NO2)
         self.out[:, K.O_NH3] = nh3
         self.power[:] = rows[:, 4]
+        account_commands(self.inputs[:, K.I_ADBLUE].copy(), self.acc)  # no actuator: command = delivered
         account_batch(self.inputs, self.power, self.dt, self.out, self.w, self.terms, self.reward, self.acc)
         reward = self.reward.copy()
         self.k += 1

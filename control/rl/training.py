@@ -89,6 +89,10 @@ class ProgressCallback(BaseCallback):
         self.show = show
         self._bar = None
         self._kpis: list[dict[str, float]] = []
+        self._returns: list[float] = []
+        #: learning curve: every 8 finished episodes, (timesteps, mean episode return, tailpipe NOx g/kWh, slip ppm)
+        self.curve: dict[str, list[float]] = {"timesteps": [], "episode_return": [], "tailpipe_nox_g_per_kwh": [],
+                                              "mean_nh3_slip_ppm": []}
 
     def _on_training_start(self) -> None:
         if self.show:
@@ -102,7 +106,14 @@ class ProgressCallback(BaseCallback):
         for info in self.locals.get("infos", ()):
             if "episode_kpis" in info:
                 self._kpis.append(info["episode_kpis"])
+            if "episode" in info:
+                self._returns.append(float(info["episode"]["r"]))
         if len(self._kpis) >= 8:
+            self.curve["timesteps"].append(int(self.num_timesteps))
+            self.curve["episode_return"].append(float(np.mean(self._returns)) if self._returns else float("nan"))
+            for key in ("tailpipe_nox_g_per_kwh", "mean_nh3_slip_ppm"):
+                self.curve[key].append(float(np.nanmean([k[key] for k in self._kpis])))
+            self._returns = []
             for key in ("tailpipe_nox_g_per_kwh", "mean_nh3_slip_ppm", "nox_conversion"):
                 self.logger.record(f"kpi/{key}", float(np.nanmean([k[key] for k in self._kpis])))
             if self._bar is not None:
@@ -216,7 +227,8 @@ def train(algo: str, timesteps: int, seed: int = 0, num_envs: int | None = None,
         "norm_reward": norm_reward,
     }
     meta.update(metadata or {})
-    callbacks: list[BaseCallback] = [ProgressCallback(timesteps, show=progress_bar)]
+    progress = ProgressCallback(timesteps, show=progress_bar)
+    callbacks: list[BaseCallback] = [progress]
     if checkpoint_every and out is not None:
         callbacks.append(CheckpointCallback(checkpoint_every, Path(out) / "checkpoints", algo, meta))
     t0 = time.perf_counter()
@@ -224,5 +236,7 @@ def train(algo: str, timesteps: int, seed: int = 0, num_envs: int | None = None,
     wall = time.perf_counter() - t0
     meta["timesteps"] = int(model.num_timesteps)
     meta["wall_time_s"] = round(wall, 1)
+    meta["steps_per_s"] = round(model.num_timesteps / max(wall, 1e-9), 1)
+    meta["learning_curve"] = progress.curve
     env.training = False
     return TrainingResult(model, env, wall, meta)

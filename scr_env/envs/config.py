@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from scr_env.actuator import ActuatorParams, actuator_params
 from scr_env.cycles import ExhaustTrace, available_cycles, load_cycle
 from scr_env.envs.core import NH3_SENSOR_HIGH, OBS_BASE, OBS_BASE_HIGH, OBS_BASE_LOW, RewardWeights
 from scr_env.params import (
@@ -47,6 +48,7 @@ class EnvConfig:
     randomize: float
     initial_coverage: float
     random_cycle_duration_s: float
+    actuator: ActuatorParams | None = None
     age_h_range: tuple[float, float] | None = None
 
     @property
@@ -144,7 +146,7 @@ def make_config(cycle: Any = "whtc", catalyst: Any = "cu_zeolite", dt: float = 0
                 sensor_noise: bool = True, reward_weights: Any = None, action_mode: str = "normalized",
                 nh3_sensor: bool = False, privileged: bool = False, cold_start: bool = False,
                 randomize: float = 0.0, initial_coverage: float = 0.0,
-                random_cycle_duration_s: float = 1800.0, age_h: Any = 0.0) -> EnvConfig:
+                random_cycle_duration_s: float = 1800.0, actuator: Any = None, age_h: Any = 0.0) -> EnvConfig:
     """Check every environment argument and return an :class:`EnvConfig` (ValueError naming the argument).
 
     Numbers must be numbers (not strings or bools) and flags must be bools (``True``/``False`` or numpy bools): a
@@ -208,7 +210,9 @@ def make_config(cycle: Any = "whtc", catalyst: Any = "cu_zeolite", dt: float = 0
     randomize = _number("randomize", randomize, 0.0, 0.9)
     initial_coverage = _number("initial_coverage", initial_coverage, 0.0, 1.0)
     duration = _number("random_cycle_duration_s", random_cycle_duration_s, 10.0, 86400.0)
+    act = actuator_params(actuator)
     return EnvConfig(cycle=cycle, catalyst=cat, dt=dt, ageing=ageing, dosing=dosing, sensors=sensors,
                      reward_weights=weights, action_mode=action_mode, nh3_sensor=nh3_sensor,
                      privileged=privileged, cold_start=cold_start, randomize=randomize,
-                     initial_coverage=initial_coverage, random_cycle_duration_s=duration, age_h_range=age_h_range)
+                     initial_coverage=initial_coverage, random_cycle_duration_s=duration, actuator=act,
+                     age_h_range=age_h_range)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numba
 import numpy as np
@@ -35,12 +35,14 @@ from scr_env.envs.kpis import (  # noqa: F401  (the reward and KPI names, re-exp
     N_TERMS,
     REWARD_TERMS,
     RewardWeights,
+    account_command,
     account_step,
     episode_kpis,
 )
 from scr_env.jit import njit
 from scr_env.params import P, pack
 from scr_env.physics import kernel as K
+from scr_env.physics.backends import actuator_step_nb
 
 if TYPE_CHECKING:
     from scr_env.envs.config import EnvConfig
@@ -88,6 +90,11 @@ def _post_one(b, inputs, power_kw, dt, out, action_norm, weights, terms, reward,
 
 _N_INPUTS = len(K.INPUT_FIELDS)
 _N_OUTPUTS = len(K.OUTPUT_FIELDS)
+# the actuator block of a plant: delivered AdBlue rate [g/s], lag coefficient [-], largest change per step [g/s],
+# enabled (1.0) or not (0.0: the command is delivered as it is) -- scr_env.actuator
+ACTUATOR_FIELDS = ("delivered_g_s", "lag_coefficient", "max_change_g_s", "enabled")
+N_ACTUATOR = len(ACTUATOR_FIELDS)
+ACT_DELIVERED, ACT_LAG, ACT_MAX_CHANGE, ACT_ENABLED = range(N_ACTUATOR)
 
 
 @njit(nogil=True, error_model="numpy", fastmath=set(K.FASTMATH), inline="always")
@@ -99,7 +106,7 @@ def _blocks(buf, lay):
             buf[:, lay[4]:lay[4] + _N_INPUTS], buf[:, lay[5]], buf[:, lay[6]:lay[6] + K.N_PACKED],
             buf[:, lay[7]:lay[7] + K.N_AUX], buf[:, lay[8]:lay[8] + K.N_NOISE], buf[:, lay[9]:lay[9] + _N_OUTPUTS],
             buf[:, lay[10]], buf[:, lay[11]:lay[11] + N_TERMS], buf[:, lay[12]:lay[12] + N_TERMS], buf[:, lay[13]],
-            buf[:, lay[14]:lay[14] + N_ACC])
+            buf[:, lay[14]:lay[14] + N_ACC], buf[:, lay[15]:lay[15] + N_ACTUATOR])
 
 
 # The parallel loops call it with np.int64(b): a prange index is unsigned, and numba would compile a second copy of
@@ -108,7 +115,7 @@ def _blocks(buf, lay):
 def _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
     # few arguments on purpose: each array argument is a 7-word struct passed on the stack
     (theta, temp, sens, inputs, power, cat_p, aux_p, noise, out, action_norm, weights, terms, reward,
-     acc) = _blocks(buf, lay)
+     acc, act) = _blocks(buf, lay)
     r = row_idx[b]
     inputs[b, K.I_FLOW] = drive[r, D_FLOW]
     inputs[b, K.I_TIN] = drive[r, D_TIN]
@@ -119,8 +126,15 @@ def _one(b, buf, lay, obs, drive, row_idx, noise_tab, noise_idx, dt):
     m = noise_idx[b]
     for i in range(K.N_NOISE):
         noise[b, i] = noise_tab[m, i]
+    # the dosing unit (scr_env.actuator): the command in inputs[b, I_ADBLUE] becomes the rate it delivers
+    command = inputs[b, K.I_ADBLUE]
+    account_command(b, command, acc)
+    if act[b, ACT_ENABLED] != 0.0:
+        delivered = actuator_step_nb(command, act[b, ACT_DELIVERED], act[b, ACT_LAG], act[b, ACT_MAX_CHANGE])
+        act[b, ACT_DELIVERED] = delivered
+        inputs[b, K.I_ADBLUE] = delivered
     K._plant_step_one(b, theta, temp, sens, inputs, dt, cat_p, aux_p, noise, out)
-    _post_one(b, inputs, power, dt, out, action_norm, weights, terms, reward, acc, obs, lay[15] != 0, lay[16] != 0,
+    _post_one(b, inputs, power, dt, out, action_norm, weights, terms, reward, acc, obs, lay[16] != 0, lay[17] != 0,
               theta)
 
 
@@ -205,6 +219,7 @@ def vector_outputs(buf, lay, k, length, info, step_index, truncated, skip):
         info[3, b] = out[b, K.O_NO] + out[b, K.O_NO2]
         info[4, b] = out[b, K.O_NH3]
         info[5, b] = reward[b]
+        info[6, b] = buf[b, lay[4] + K.I_ADBLUE]  # the rate delivered (the command unless an actuator lags it)
     return ended
 
 
@@ -253,7 +268,7 @@ def vector_step_parallel(actions, normalized, max_rate_g_s, buf, lay, obs, drive
 _BLOCKS = (("theta", None), ("temperature_k", None), ("sensor_state", K.N_SENSOR_STATES),
            ("inputs", _N_INPUTS), ("power_kw", 1), ("cat_params", K.N_PACKED), ("aux_params", K.N_AUX),
            ("noise", K.N_NOISE), ("out", _N_OUTPUTS), ("action_norm", 1), ("weights", N_TERMS),
-           ("terms", N_TERMS), ("reward", 1), ("acc", N_ACC))
+           ("terms", N_TERMS), ("reward", 1), ("acc", N_ACC), ("actuator", N_ACTUATOR))
 
 
 class _ThreadingChooser:
@@ -331,6 +346,15 @@ class PlantBatch:
         self.col_action = offsets[9]
         self.col_reward = offsets[12]
 
+    def set_actuator(self, actuator: Any, dt: float) -> None:
+        """Every plant behind ``actuator`` (:class:`scr_env.actuator.ActuatorParams`, or None for ideal dosing)."""
+        if actuator is None:
+            self.actuator[:] = 0.0
+            return
+        self.actuator[:, ACT_LAG] = actuator.lag_coefficient(dt)
+        self.actuator[:, ACT_MAX_CHANGE] = actuator.max_change_g_s(dt)
+        self.actuator[:, ACT_ENABLED] = 1.0
+
     def step(self, dt: float, drive: np.ndarray, row_idx: np.ndarray, noise_tab: np.ndarray,
              noise_idx: np.ndarray) -> None:
         """Advance every plant by ``dt``: plant b reads row ``row_idx[b]`` of ``drive`` (flow, inlet temperature,
@@ -390,6 +414,7 @@ class PlantBatch:
         self.temperature_k[i] = config.catalyst.ambient_temperature_k if cold else t0
         self.sensor_state[i] = (nox0 * (1.0 - no2f0) + config.sensors.nox_sensor_no2_gain * nox0 * no2f0, 0.0, t0)
         self.acc[i] = 0.0
+        self.actuator[i, ACT_DELIVERED] = 0.0  # no dosing before the episode
         self.acc[i, A_STORED0_MOL] = float(self.theta[i].sum() * self.cat_params[i, _P_SITES])
         self.initial_observation(i, nox0, t0, float(first_row[D_FLOW]), -1.0)
 

@@ -29,16 +29,19 @@ from scr_env.physics.kernel import (
     O_UREA_N,
 )
 
-__all__ = ["N_ACC", "REWARD_TERMS", "RewardWeights", "account_batch", "account_step", "episode_kpis"]
+__all__ = ["N_ACC", "REWARD_TERMS", "RewardWeights", "account_batch", "account_command", "account_commands",
+           "account_step", "episode_kpis"]
 
 # reward terms, in the order of the ``terms`` array and of ``info``
 REWARD_TERMS = ("nox_cost", "nh3_cost", "adblue_cost")
 N_TERMS = len(REWARD_TERMS)
 
 # episode accumulators (per plant), the columns of an accumulator row
+# (the last four: total variation [g/s] of the delivered and the commanded AdBlue rate, and their last values)
 (A_ENGINE_NOX_G, A_TAILPIPE_NOX_G, A_NH3_PPM_S, A_NH3_PEAK_PPM, A_ADBLUE_G, A_TIME_S, A_WORK_KWH, A_N_IN_MOL,
- A_N_OUT_MOL, A_STORED0_MOL, A_NH3_G, A_N2O_G, A_UREA_N_MOL, A_STEPS) = range(14)
-N_ACC = 14
+ A_N_OUT_MOL, A_STORED0_MOL, A_NH3_G, A_N2O_G, A_UREA_N_MOL, A_STEPS, A_ADBLUE_TV, A_ADBLUE_LAST, A_COMMAND_TV,
+ A_COMMAND_LAST) = range(18)
+N_ACC = 18
 
 
 @dataclass(frozen=True)
@@ -94,6 +97,9 @@ def account_step(b, inputs, power_kw, dt, out, weights, terms, reward, acc):
     terms[b, 2] = t2
     reward[b] = t0 + t1 + t2
     nox_in_mol_s = inputs[b, I_NOX] * 1e-6 * flow
+    if acc[b, A_STEPS] > 0.0:  # chatter: consecutive steps of the episode only (not the jump from "no dosing")
+        acc[b, A_ADBLUE_TV] += abs(adblue - acc[b, A_ADBLUE_LAST])
+    acc[b, A_ADBLUE_LAST] = adblue
     acc[b, A_ENGINE_NOX_G] += nox_in_mol_s * NO2_MOLAR_MASS_G_MOL * dt
     acc[b, A_TAILPIPE_NOX_G] += nox_g
     acc[b, A_NH3_PPM_S] += nh3_ppm * dt
@@ -118,6 +124,24 @@ def account_batch(inputs: np.ndarray, power_kw: np.ndarray, dt: float, out: np.n
     environments that step another model than the plant kernel (:mod:`control.rl.surrogate`)."""
     for b in range(acc.shape[0]):
         account_step(b, inputs, power_kw, dt, out, weights, terms, reward, acc)
+
+
+@njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH), inline="always")
+def account_command(b, command_g_s, acc):
+    """Adds the commanded AdBlue rate [g/s] of plant ``b``'s step to the chatter accumulators of ``acc[b]`` (call
+    it before :func:`account_step` of the same step). The command differs from the delivered rate only behind an
+    actuator (:mod:`scr_env.actuator`); a model that has none may leave it out, the KPI then equals the delivered
+    rate's only if it calls this too."""
+    if acc[b, A_STEPS] > 0.0:
+        acc[b, A_COMMAND_TV] += abs(command_g_s - acc[b, A_COMMAND_LAST])
+    acc[b, A_COMMAND_LAST] = command_g_s
+
+
+@njit(nogil=True, error_model="numpy", fastmath=set(FASTMATH))
+def account_commands(commands_g_s: np.ndarray, acc: np.ndarray) -> None:
+    """:func:`account_command` for every plant of a batch (``commands_g_s`` (B,))."""
+    for b in range(acc.shape[0]):
+        account_command(b, commands_g_s[b], acc)
 
 
 def episode_kpis(acc: np.ndarray, stored_now_mol: float | None = None) -> dict[str, float]:
@@ -146,6 +170,9 @@ def episode_kpis(acc: np.ndarray, stored_now_mol: float | None = None) -> dict[s
         "adblue_g_per_kwh": float(acc[A_ADBLUE_G]) / work if work > 0 else nan,
         "engine_work_kwh": work,
         "duration_s": time_s,
+        # chatter: total variation of the dose per hour of the episode [g/s per h] (delivered; commanded)
+        "adblue_total_variation_g_s_per_h": float(acc[A_ADBLUE_TV]) * 3600.0 / time_s if time_s > 0 else nan,
+        "command_total_variation_g_s_per_h": float(acc[A_COMMAND_TV]) * 3600.0 / time_s if time_s > 0 else nan,
     }
     if stored_now_mol is None:
         del kpis["n2o_g"]

@@ -42,7 +42,10 @@ class UreaSCREnv(gym.Env):
     | a in [-1, 1] | AdBlue injection rate | (a + 1) / 2 * ``dosing.max_rate_g_s`` [g/s] (3.0 g/s default) |
 
     With ``action_mode="physical"`` the space is ``Box(0, max_rate_g_s, (1,))`` in g/s. Out-of-range actions are
-    clipped to the bounds (the clipped value is what is injected, charged and observed). An action must be a real
+    clipped to the bounds (the clipped value is what is commanded and observed). With ``actuator`` (see
+    :mod:`scr_env.actuator`) the injector delivers the command through a first-order lag and a slew limit: the plant,
+    the reward, the KPIs and ``info["adblue_g_s"]`` see the delivered rate, the observation's previous action stays
+    the command. An action must be a real
     number: a float or int scalar or array of one element. NaN, inf, a wrong shape or anything else (None, a string,
     a bool, a complex number) raises ``ValueError``.
 
@@ -108,6 +111,7 @@ class UreaSCREnv(gym.Env):
     | cold_start | False | aftertreatment starts at ambient temperature |
     | randomize | 0.0 | domain randomisation spread (e.g. 0.2 = +/-20 %) of capacity, activity and volume per reset |
     | initial_coverage | 0.0 | NH3 coverage at reset |
+    | actuator | None | dosing unit (lag, slew limit): None, "default", a dict or ``scr_env.actuator.ActuatorParams`` |
     | render_mode | None | "rgb_array" or "human": plot of the episode so far |
 
     Flags (``sensor_noise``, ``nh3_sensor``, ``privileged``, ``cold_start``) must be ``True``/``False`` (or numpy
@@ -137,6 +141,7 @@ class UreaSCREnv(gym.Env):
         self._batch = core.PlantBatch(1, cfg.catalyst.n_cells, low.size, cfg.nh3_sensor, cfg.privileged)
         self._batch.aux_params[0] = K.pack_aux(cfg.dosing, cfg.sensors)
         self._batch.weights[0] = cfg.reward_weights.as_array()
+        self._batch.set_actuator(cfg.actuator, cfg.dt)
         self._base_params = pack(cfg.effective_catalyst)
         self._fixed_trace: ExhaustTrace | None = None
         if cfg.cycle != "random":
@@ -246,11 +251,12 @@ class UreaSCREnv(gym.Env):
         info = {
             "nox_cost": terms[0], "nh3_cost": terms[1], "adblue_cost": terms[2],
             "tailpipe_nox_ppm": out[K.O_NO] + out[K.O_NO2], "tailpipe_nh3_ppm": out[K.O_NH3],
-            "engine_out_nox_ppm": self._nox_list[k], "adblue_g_s": rate, "time_s": self._k * self.dt,
+            "engine_out_nox_ppm": self._nox_list[k], "adblue_g_s": float(buf[0, b.col_adblue]),
+            "time_s": self._k * self.dt,
         }
         if self.render_mode is not None:
             self._record(self._k * self.dt, info["engine_out_nox_ppm"], info["tailpipe_nox_ppm"],
-                         info["tailpipe_nh3_ppm"], rate, float(self._drive[k, 1]), out[K.O_COV])
+                         info["tailpipe_nh3_ppm"], info["adblue_g_s"], float(self._drive[k, 1]), out[K.O_COV])
         if truncated:
             self._needs_reset = True
             info["episode_kpis"] = core.episode_kpis(b.acc[0], out[K.O_STORED])

@@ -164,6 +164,7 @@ class UreaSCRVectorEnv(VectorEnv):
         self._batch = core.PlantBatch(n, cfg.catalyst.n_cells, low.size, cfg.nh3_sensor, cfg.privileged)
         self._batch.aux_params[:] = K.pack_aux(cfg.dosing, cfg.sensors)
         self._batch.weights[:] = cfg.reward_weights.as_array()
+        self._batch.set_actuator(cfg.actuator, cfg.dt)
         self._base_params = pack(cfg.effective_catalyst)
         self._traces: list[ExhaustTrace] = []
         self._flat = np.zeros((0, 6))

@@ -42,8 +42,8 @@ _SOURCES = ("o2_factors", "no_oxidation_equilibrium", "arrhenius_constants", "ra
 # The rest of the plant, after the chemistry (dosing calls decomposition_efficiency).
 _PLANT_SOURCES = (
     (_thermal, ("gas_solid_exchange", "gas_outlet_temperature", "cell_temperature_step", "cell_temperature_rate")),
-    (_dosing, ("injected_adblue", "urea_decomposition", "flow_per_site", "inlet_nh3_fraction", "inlet_nox_fractions",
-               "inlet_conditions")),
+    (_dosing, ("actuator_step", "injected_adblue", "urea_decomposition", "flow_per_site", "inlet_nh3_fraction",
+               "inlet_nox_fractions", "inlet_conditions")),
 )
 
 
@@ -111,6 +111,7 @@ gas_solid_exchange_nb = _NB["gas_solid_exchange"]
 gas_outlet_temperature_nb = _NB["gas_outlet_temperature"]
 cell_temperature_step_nb = _NB["cell_temperature_step"]
 inlet_conditions_nb = _NB["inlet_conditions"]
+actuator_step_nb = _NB["actuator_step"]
 
 
 @cache

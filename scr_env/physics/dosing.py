@@ -26,6 +26,15 @@ def fmax(a, b):  # rebound per backend
     return max(a, b)
 
 
+def actuator_step(command_g_s, delivered_g_s, lag_coefficient, max_change_g_s):
+    """The AdBlue rate a dosing unit delivers over the next control interval [g/s] (the optional actuator of
+    :mod:`scr_env.actuator`): a first-order lag of the delivered rate ``delivered_g_s`` towards the command
+    ``command_g_s``, ``lag_coefficient`` = 1 - exp(-dt / time constant) [-], its change per interval bounded by
+    ``max_change_g_s`` = slew limit [g/s per s] * dt [g/s]."""
+    change = lag_coefficient * (command_g_s - delivered_g_s)
+    return delivered_g_s + fmin(fmax(change, -max_change_g_s), max_change_g_s)
+
+
 def injected_adblue(adblue_g_s, max_rate_g_s):
     """The AdBlue rate the injector delivers [g/s]: the command clamped to [0, ``max_rate_g_s``]."""
     return fmin(fmax(adblue_g_s, 0.0), max_rate_g_s)

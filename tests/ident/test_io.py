@@ -328,13 +328,8 @@ def test_no_pickle_anywhere_in_the_project():
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
-    known = {
-        # Known exception: the RL policy loader (load_policy) belongs to another stream (issue #24 item 5: load SB3
-        # policies by their state_dict with torch weights_only=True). Until that lands it loads the SB3 zip with
-        # algo.load(..., custom_objects=...), which still unpickles the zip's remaining data entries. Remove this
-        # entry when it is fixed; the test then guards it.
-        "control/rl/policy.py",
-    }
+    # no known exceptions: the RL policy loader (control/rl/policy.py) reads state-dict arrays since issue #24
+    known: set[str] = set()
     patterns = [re.compile(r"^\s*(import|from)\s+(c?pickle|cloudpickle|dill|joblib)\b", re.MULTILINE),
                 re.compile(r"allow_pickle\s*=\s*True"),
                 re.compile(r"\bpickle\.loads?\("),

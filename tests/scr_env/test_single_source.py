@@ -176,6 +176,7 @@ def test_plant_and_surrogate_share_the_reward_and_kpi_definition() -> None:
     for k in range(400):
         env.step(np.array([0.3 if k > 100 else -1.0], dtype=np.float32))
         terms, reward = np.zeros((1, 3)), np.zeros(1)
+        KP.account_commands(b.inputs[:, K.I_ADBLUE].copy(), acc)  # no actuator: the command is delivered
         KP.account_batch(b.inputs.copy(), b.power_kw.copy(), env.dt, b.out.copy(), b.weights.copy(), terms, reward,
                          acc)
         np.testing.assert_array_equal(terms, b.terms)
