@@ -1,16 +1,17 @@
 """The identify-then-control loop's pieces: black-box identification for control, held-out cycles, the gap closed.
 
-1. Excitation experiments on the plant (open loop, random cycles; never the held-out cycles): the grey-box model's
-   records (:func:`control.factory.greybox_record`) and :func:`black_box_excitation`, a record with sustained
-   over-dosing so that NH3 slip is excited too (black-box models).
-2. :func:`identify_black_box`: a linear state-space model (N4SID), RPEM (2nd-order chain per output, the 9-term
-   structure of Paper III) and, optionally, Hammerstein-Wiener (Wiener with output saturation, one per output) on
-   normalised data, saved beside each other; validation FIT of each output on held-out excitation data (the WHTC,
-   another seed).
-3. :func:`loop_controller`: the NMPC on each identified model (:func:`control.factory.black_box_mpc`,
-   :func:`control.factory.identified_mpc`), the oracle, the baselines and the shipped RL policies, by name.
-4. :func:`held_out` cycles and :func:`gap_closed`: the fraction of the look-up-table-to-oracle gap in tailpipe NOx
-   that the NMPC on each identified model closes, counted within the Euro VI slip limit only.
+1. Excitation experiments on the plant (random cycles; never the calibration cycles 5-8 nor the held-out cycles):
+   the grey-box model's records (:func:`control.factory.greybox_record`) and the control-relevant records of
+   :mod:`ident.for_control` (open-loop ANR 0.8-1.3 with over-dosing bursts, and an edge-seeking relay) over many
+   random cycles.
+2. :func:`identify_for_control`: the two-output RPEM (the thesis' polynomial chain ODE with storage-capable
+   regressors) and Hammerstein-Wiener model on measured-signal features; k-step FIT on a validation record.
+3. :func:`loop_controller`: the NMPC on each identified model (:func:`control.blackbox.black_box_nmpc`,
+   :func:`control.factory.identified_mpc`), the oracle (:func:`control.factory.oracle_mpc`), the baselines and
+   the shipped RL policies, by name; :func:`ablation_controllers` the ablation's variants.
+4. :func:`held_out` cycles and :func:`gap_closed` / :func:`gap_closed_over_seeds`: the fraction of the
+   look-up-table-to-oracle gap in tailpipe NOx that the NMPC on each identified model closes, counted within the
+   Euro VI slip limit only.
 """
 from __future__ import annotations
 
@@ -22,14 +23,19 @@ import numpy as np
 
 from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM
 
-__all__ = ["BLACK_BOX", "black_box_excitation", "gap_closed", "held_out", "identify_black_box", "load_black_box",
-           "loop_controller"]
+__all__ = ["BLACK_BOX", "ablation_controllers", "black_box_excitation", "gap_closed", "gap_closed_over_seeds",
+           "held_out", "identify_for_control", "load_for_control", "loop_controller"]
 
 #: the black-box model kinds of the loop
-BLACK_BOX = ("linear", "rpem", "hammerstein_wiener")
+BLACK_BOX = ("rpem", "hammerstein_wiener")
 EXCITATION_SEED = 3  # random cycle of the black-box excitation record (held-out cycles are WHTC/WHSC)
 VALIDATION_SEED = 99  # sensor noise and excitation seed of the validation record (on the WHTC)
 QUICK_SEGMENT_S = 600.0  # s of each held-out cycle in quick mode
+QUICK_IDENT_SEEDS = 3  # identification cycles in quick mode (of ident.for_control.IDENT_SEEDS)
+#: the identification ablation's models: without control-relevant excitation (the single over-dosing design of
+#: :func:`black_box_excitation` on the same cycles), and the RPEM without storage regressors (Paper III's linear)
+IDENT_ABLATIONS = ("rpem-no_control_relevant_excitation", "hammerstein_wiener-no_control_relevant_excitation",
+                   "rpem-no_storage_terms")
 #: mean NH3 slip limit [ppm] within which a gap counts as closed (Euro VI)
 SLIP_LIMIT_PPM = EURO_VI_NH3_SLIP_LIMIT_PPM
 
@@ -54,83 +60,124 @@ def held_out(quick: bool) -> list[Any]:
     return [load_cycle(name, dt=0.5) for name in ("whtc", "whsc")]
 
 
-def identify_black_box(out: Path, include_hw: bool) -> dict[str, Any]:
-    """Fit the black-box models on normalised data; save them (JSON + NPZ) to ``out``; return their paths, the
-    normalisation, the data description and the validation FIT [%] and SD [ppm] per output. A model whose fit
-    fails is reported (``{"error": ...}``), not raised."""
-    from ident.hammerstein_wiener import HammersteinWiener, Saturation
+def identify_for_control(out: Path, quick: bool = False, ablation: bool = False) -> dict[str, Any]:
+    """Identification for control (:mod:`ident.for_control`): control-relevant records over the random cycles of
+    :data:`ident.for_control.IDENT_SEEDS` (quick: the first :data:`QUICK_IDENT_SEEDS` seeds), the two-output RPEM and
+    Hammerstein-Wiener models, saved to ``out``; their k-step FIT [%] on the validation record (random cycle
+    :data:`ident.for_control.VALIDATION_SEED`, both designs). With ``ablation``, the models without one
+    identification ingredient each (:data:`IDENT_ABLATIONS`). A failed fit is reported (``{"error": ...}``)."""
+    from ident.for_control import (
+        DESIGNS,
+        IDENT_SEEDS,
+        VALIDATION_SEED,
+        fit_hw_for_control,
+        fit_rpem_for_control,
+        hw_linear_export,
+        identification_records,
+        k_step_fit,
+    )
     from ident.io import save_model
-    from ident.linear import N4SID
-    from ident.metrics import fit_percent
-    from ident.preprocessing import Normalizer
-    from ident.rpem import SCR_PAPER3_LINEAR_TERMS, RecursivePEM
-    from ident.stack import OutputStack
 
-    est = black_box_excitation("random", EXCITATION_SEED)
-    val = black_box_excitation("whtc", VALIDATION_SEED)
-    nu, ny = Normalizer().fit(est.u), Normalizer().fit(est.y)
-    u, y, uv, yv = nu.transform(est.u), ny.transform(est.y), nu.transform(val.u), ny.transform(val.y)
-    w_min = -ny.mean_ / ny.scale_  # zero ppm in normalised units: the output saturation of Papers III/IV
-    candidates: dict[str, Any] = {
-        "linear": lambda: N4SID(order=4),
-        "rpem": lambda: RecursivePEM(n_states=2, terms=SCR_PAPER3_LINEAR_TERMS, sampling_period=est.dt, alpha=1.5,
-                                     init="kalman", n_passes=3,
-                                     output_limits=[(float(w), np.inf) for w in w_min]),
-    }
-    if include_hw:
-        candidates["hammerstein_wiener"] = lambda: OutputStack(
-            [HammersteinWiener(output_block=Saturation(lower=float(w_min[i])), max_nfev=30) for i in range(3)])
-    info: dict[str, Any] = {"data": {"estimation": est.meta, "validation": val.meta},
-                            "input_mean": nu.mean_.tolist(), "input_scale": nu.scale_.tolist(),
-                            "output_mean": ny.mean_.tolist(), "output_scale": ny.scale_.tolist(), "models": {}}
-    for name, make in candidates.items():
+    seeds = IDENT_SEEDS[:QUICK_IDENT_SEEDS] if quick else IDENT_SEEDS
+    records = identification_records(seeds)
+    validation = identification_records((VALIDATION_SEED,))
+    fits: dict[str, Any] = {"rpem": lambda r: fit_rpem_for_control(r, validation=validation),
+                            "hammerstein_wiener": lambda r: fit_hw_for_control(r)}
+    variants: list[tuple[str, str, Any]] = [(n, n, f) for n, f in fits.items()]
+    if ablation:
+        over = identification_records(seeds, designs=("overdosing",))
+        for n, f in fits.items():
+            variants.append((f"{n}-no_control_relevant_excitation", n, lambda r, f=f: f(over)))
+        variants.append(("rpem-no_storage_terms", "rpem", lambda r: fit_rpem_for_control(r, storage_terms=False)))
+    info: dict[str, Any] = {"data": {"seeds": list(seeds), "designs": list(DESIGNS), "n_records": len(records),
+                                     "validation_seed": VALIDATION_SEED}, "models": {}}
+    for name, kind, fit in variants:
         t0 = time.perf_counter()
         try:
-            model = make().fit(u, y)
+            model, minfo = fit(records)
+            step = model.to_casadi() if kind == "rpem" else hw_linear_export(model)[0]
+            kfit = {f"{k}_steps": [k_step_fit(step, minfo, r, k) for r in validation] for k in (40, 160)}
         except Exception as exc:  # noqa: BLE001  (an identification failure is a result, reported, not a crash)
             info["models"][name] = {"error": f"{type(exc).__name__}: {exc}"}
             continue
-        yp = model.predict(uv)
-        fits = {n: float(fit_percent(yv[:, i], yp[:, i])) for i, n in enumerate(val.output_names)}
-        entry: dict[str, Any] = {"fit_seconds": time.perf_counter() - t0, "validation_fit_percent": fits,
-                                 "validation_sd_ppm": {n: float(val.y[:, i].std())
-                                                       for i, n in enumerate(val.output_names)}}
-        if isinstance(model, OutputStack):
-            entry["paths"] = [str(save_model(m, out / f"model_{name}_{i}")) for i, m in enumerate(model.models_)]
-        else:
-            entry["paths"] = [str(save_model(model, out / f"model_{name}"))]
-        info["models"][name] = entry
+        info["models"][name] = {"kind": kind, "path": str(save_model(model, out / f"model_{name}")), "info": minfo,
+                                "fit_seconds": time.perf_counter() - t0, "validation_kstep_fit_percent": kfit}
     return info
 
 
-def load_black_box(name: str, info: dict[str, Any]) -> Any:
-    """The black-box model ``name`` saved by :func:`identify_black_box` (an OutputStack if saved per output)."""
+def load_for_control(name: str, info: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """(model, description) of the model ``name`` saved by :func:`identify_for_control`."""
     from ident.io import load_model
-    from ident.stack import OutputStack
 
-    models = [load_model(p) for p in info["models"][name]["paths"]]
-    if len(models) == 1:
-        return models[0]
-    stack = OutputStack([None] * len(models))
-    stack.models_ = models
-    return stack
+    entry = info["models"].get(name)
+    if entry is None or "path" not in entry:
+        raise ValueError(f"no identified model {name!r} (have: {sorted(info['models'])})")
+    return load_model(entry["path"]), entry["info"]
 
 
 def loop_controller(name: str, greybox: Any, black_box: dict[str, Any] | None, quick: bool) -> Any:
-    """A policy of the loop by name: ``lookup_table``, ``pi``, ``mpc_oracle``, ``mpc_greybox`` (the benchmark's
-    ``mpc_identified`` on the fitted grey-box model ``greybox``), ``mpc_<kind>`` for a black-box model of
-    :func:`identify_black_box` (``black_box``: its returned info), or a shipped RL policy."""
-    from control.factory import black_box_mpc, identified_mpc, make_controller
+    """A policy of the loop by name: ``lookup_table``, ``pi``, ``mpc_oracle`` (:func:`control.factory.oracle_mpc`),
+    ``mpc_greybox`` (the benchmark's ``mpc_identified`` on the fitted grey-box model ``greybox``), ``mpc_rpem`` and
+    ``mpc_hammerstein_wiener`` (:func:`control.blackbox.black_box_nmpc` on the models of
+    :func:`identify_for_control`, ``black_box`` its returned info), their ablation variants
+    ``mpc_<model>-no_<ingredient>`` (:data:`control.blackbox.INGREDIENTS` for the controller, or an identification
+    ingredient of :data:`IDENT_ABLATIONS`), or a shipped RL policy."""
+    from control.blackbox import INGREDIENTS, black_box_nmpc
+    from control.factory import identified_mpc, make_controller
 
     if name == "mpc_greybox":
         return identified_mpc(greybox, quick)
     if name.startswith("mpc_") and name != "mpc_oracle":
-        if black_box is None or name[4:] not in black_box.get("models", {}):
-            raise ValueError(f"{name}: no identified black-box model {name[4:]!r}")
-        bb = black_box
-        return black_box_mpc(load_black_box(name[4:], bb), bb["input_mean"], bb["input_scale"], bb["output_mean"],
-                             bb["output_scale"], quick)
+        if black_box is None:
+            raise ValueError(f"{name}: no identified black-box models")
+        model_name, _, removed = name[4:].partition("-")
+        flags: dict[str, bool] = {}
+        if removed:
+            ingredient = removed.removeprefix("no_")
+            if ingredient in INGREDIENTS:
+                flags[ingredient] = False
+            else:
+                model_name = name[4:]   # an identification ablation: a model of its own
+        model, info = load_for_control(model_name, black_box)
+        return black_box_nmpc(model, info, quick, **flags)
     return make_controller(name, None, quick)
+
+
+def ablation_controllers(models: tuple[str, ...] = ("rpem", "hammerstein_wiener")) -> list[str]:
+    """The ablation's controller names: each controller ingredient removed in turn, and each identification
+    ingredient (:data:`IDENT_ABLATIONS`) removed in turn, per model."""
+    from control.blackbox import INGREDIENTS
+
+    out = [f"mpc_{m}-no_{i}" for m in models for i in INGREDIENTS]
+    return out + [f"mpc_{m}" for m in IDENT_ABLATIONS if m.split("-")[0] in models]
+
+
+def gap_closed_over_seeds(kpis_per_seed: dict[str, dict[str, list[dict[str, float]]]]
+                          ) -> tuple[dict[str, dict[str, float]], list[dict]]:
+    """:func:`gap_closed` per sensor-noise seed, then the seed mean per model and cycle; a model/cycle pair counts
+    only if every seed counts (slip within the limit); the others are returned as excluded, with the seeds' mean
+    raw fraction."""
+    out: dict[str, dict[str, float]] = {}
+    excluded: list[dict] = []
+    for cycle, ctrl in kpis_per_seed.items():
+        n = min((len(v) for v in ctrl.values()), default=0)
+        per: dict[str, list[float]] = {}
+        bad: dict[str, list[dict]] = {}
+        for i in range(n):
+            g, ex = gap_closed({cycle: {c: rows[i] for c, rows in ctrl.items()}})
+            for m, d in g.items():
+                per.setdefault(m, []).append(d[cycle])
+            for e in ex:
+                bad.setdefault(e["model"], []).append(e)
+        for m in sorted(set(per) | set(bad)):
+            if m in bad:
+                raw = [e["raw_fraction"] for e in bad[m]] + per.get(m, [])
+                excluded.append({"model": m, "cycle": cycle, "raw_fraction": float(np.mean(raw)),
+                                 "mean_nh3_slip_ppm": float(max(e["mean_nh3_slip_ppm"] for e in bad[m])),
+                                 "reason": f"{len(bad[m])} of {n} seeds: " + bad[m][0]["reason"]})
+            else:
+                out.setdefault(m, {})[cycle] = float(np.mean(per[m]))
+    return out, excluded
 
 
 def gap_closed(kpis: dict[str, dict[str, dict[str, float]]]) -> tuple[dict[str, dict[str, float]], list[dict]]:

@@ -4,8 +4,9 @@
    ranges against the thesis data, trajectory figures.
 2. The identify-then-control loop in its quick form (``python -m experiments.identify_then_control --quick``, run
    as a program):
-   excitation experiments, identification (linear, RPEM, grey-box), NMPC on each identified model, closed loop on
-   the first 600 s of the held-out WHTC against the baselines, the oracle NMPC and the shipped RL policies.
+   control-relevant excitation experiments, identification (two-output RPEM and Hammerstein-Wiener models, the
+   grey-box), the NMPC on each identified model (``mpc_rpem``, ``mpc_hammerstein_wiener``, ``mpc_greybox``), closed
+   loop on the first 600 s of the held-out WHTC against the baselines, the oracle NMPC and the shipped RL policies.
 
 Writes ``runs/demo/<stamp>/report.md`` with the tables and PNG figures, and prints where it is. The full
 identify-then-control study: ``python -m experiments.identify_then_control`` (about half an hour on 2 cores).

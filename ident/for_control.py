@@ -1,0 +1,266 @@
+"""Identification for control of the dosing loop (issue 18): the RPEM and Hammerstein-Wiener models the black-box
+NMPCs (:mod:`control.blackbox`) run on.
+
+* :func:`identification_records`: control-relevant records (:mod:`ident.control_relevant`) over many random
+  cycles (seeds :data:`IDENT_SEEDS`; never the calibration cycles 5-8 nor the held-out WHTC/WHSC).
+* :func:`fit_rpem_for_control`: the thesis' polynomial chain ODE (RPEM model class) with two outputs (log NOx slip
+  ratio, log NH3) on measured-signal features (stoichiometric surplus, inlet NOx, exp(-a/T), flow), storage-capable
+  regressor products, an equation-error start and an optional multi-step prediction-error refinement.
+* :func:`fit_hw_for_control`: a two-output Hammerstein-Wiener model (static input blocks, linear dynamics, static
+  output blocks) on the same features and outputs, fitted on all records end to end (:func:`concat_records`).
+* :func:`hw_linear_export`: its CasADi step and linear part for exact multi-step NMPC stages.
+
+Black-box boundary (issue 18): no Arrhenius kinetics and no storage balance inside either model; the features are
+static transforms of measured signals (exp(-a/T) as in Paper III).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from ident.hammerstein_wiener import HammersteinWiener
+
+
+def concat_records(us: Sequence[np.ndarray], ys: Sequence[np.ndarray], warmup: int = 120
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, y, weights) of the records end to end, weight 0 on each record's first ``warmup`` samples."""
+    w = [np.r_[np.zeros(min(warmup, len(u))), np.ones(max(len(u) - warmup, 0))] for u in us]
+    return np.vstack(us), np.vstack(ys), np.concatenate(w)
+
+
+def hw_linear_export(model: HammersteinWiener) -> tuple[ca.Function, np.ndarray, Any]:
+    """``(step, A, bfun)`` of a fitted :class:`HammersteinWiener`: ``step(x, z) -> (x_next, y)`` (its
+    ``to_casadi``) and the linear part ``x_next = A x + bfun(z)`` (``bfun(z) = B v(z)``, v the input blocks), for
+    exact multi-step stages of the NMPC."""
+    step = model.to_casadi()
+    z = ca.SX.sym("z", model.n_inputs_)
+    v = ca.vertcat(*[b.casadi(z[i], p) for i, (b, p) in
+                     enumerate(zip(model.input_blocks_, model.input_params_, strict=True))])
+    bfun_f = ca.Function("bv", [z], [ca.mtimes(ca.DM(model.B_), v)])
+    return step, np.asarray(model.A_, float), lambda zz: bfun_f(zz)
+
+
+def hw_steady_state(A: np.ndarray, bfun: Any, z: np.ndarray) -> np.ndarray:
+    """The state at rest under the held input ``z``: (I - A)^-1 B v(z)."""
+    bv = np.asarray(bfun(ca.DM(z))).ravel()
+    return np.linalg.solve(np.eye(A.shape[0]) - A, bv)
+
+
+# ------------------------------------------------------------------------------ the production identification
+#: random-cycle seeds of the identification records (calibration cycles are 5-8, held-out cycles the WHTC/WHSC)
+IDENT_SEEDS = tuple(range(10, 18))
+#: random-cycle seed of the validation record (k-step FIT)
+VALIDATION_SEED = 18
+#: the designs of the identification records (:mod:`ident.control_relevant`): open-loop ANR 0.8-1.3 with over-dosing
+#: bursts, and the edge-seeking relay around the slip edge
+DESIGNS = ("open_loop", "edge_seeking")
+#: model inputs: stoichiometric surplus [ppm], inlet NOx [ppm], exp(-a/T) [-], exhaust flow [mol/s]
+CONTROL_FEATURES = ("surplus_ppm", "nox_ppm", "exp_t", "flow")
+#: scale of each feature into order one for the RPEM's polynomial (ppm -> 1e3 ppm; flow mol/s -> 10 mol/s) [chosen]
+RPEM_FEATURE_SCALE = (1e-3, 1e-3, 1.0, 0.1)
+#: outputs: log NOx slip ratio and log NH3 ppm (:mod:`ident.control_relevant`), times this scale [chosen]
+RPEM_OUTPUT_SCALE = (0.2, 0.2)
+NOX_KIND, NH3_KIND = "logratio", "log"
+
+
+def identification_records(seeds: Sequence[int] = IDENT_SEEDS, designs: Sequence[str] = DESIGNS,
+                           duration_s: float | None = None) -> list[Any]:
+    """Control-relevant identification records (:class:`ident.control_relevant.Record`): every design on the random
+    cycle of every seed (``"open_loop"``, ``"edge_seeking"``, or ``"overdosing"``: the single open-loop over-dosing
+    design of :func:`control.loop.black_box_excitation`, the ablation's "no control-relevant excitation")."""
+    from ident.control_relevant import Record, edge_seeking_record, open_loop_record
+
+    out = []
+    for d in designs:
+        for s in seeds:
+            if d == "open_loop":
+                out.append(open_loop_record(int(s), duration_s=duration_s))
+            elif d == "edge_seeking":
+                out.append(edge_seeking_record(int(s), duration_s=duration_s))
+            elif d == "overdosing":
+                from ident.excitation import RandomSteps
+                from ident.plant_data import excitation_dataset
+
+                kw = {} if duration_s is None else {"random_cycle_duration_s": float(duration_s)}
+                ds = excitation_dataset("random", seed=int(s), base_anr=1.0,
+                                        excitation=RandomSteps(-0.9, 1.0, 20.0, 200.0), **kw)
+                out.append(Record(u=ds.u, y=ds.y, nh3_sensor=ds.y[:, 1], dt=ds.dt, meta={"kind": d, "seed": int(s)}))
+            else:
+                raise ValueError(f"designs: unknown design {d!r}; known: open_loop, edge_seeking, overdosing")
+    return out
+
+
+def control_arrays(records: Sequence[Any], features: Sequence[str] = CONTROL_FEATURES
+                   ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per record (features (n, m), outputs (n, 2): log NOx slip ratio, log NH3 ppm), unscaled."""
+    from ident.control_relevant import FeatureMap, nh3_output, nox_output
+
+    fm = FeatureMap(tuple(features))
+    return [(fm.from_record(r.u), np.column_stack([nox_output(NOX_KIND, r.y[:, 0], r.u[:, 0]),
+                                                   nh3_output(NH3_KIND, r.y[:, 1])])) for r in records]
+
+
+def rpem_storage_terms(k: int) -> list[str]:
+    """Candidate regressor of chain ``k`` (1 = NOx, 2 = NH3) of the two-output, one-state-per-chain RPEM: the
+    thesis' polynomial in states and inputs extended with products that can express storage (state x input,
+    state x input x input, input x input) and derivatives of the exogenous inputs (issue 18); inputs as
+    :data:`CONTROL_FEATURES` (u1 surplus, u2 inlet NOx, u3 exp(-a/T), u4 flow)."""
+    o, q = f"x{k}", ("x2" if k == 1 else "x1")
+    t = ["1", o, q, "u1", "u2", "u3", "u4", f"{o}*{q}", f"{o}^2", f"{q}^2"]
+    for x in (o, q):
+        t += [f"{x}*u{j}" for j in (1, 2, 3, 4)]
+    t += ["u1*u3", "u1*u4", "u2*u3", "u2*u4", "u3*u4", f"{o}*u1*u3", f"{o}*u1*u4", f"{q}*u1*u3"]
+    t += ["u3'", "u4'", "u2'", f"{o}*u3'", f"{o}*u4'", f"{o}*u2'"]
+    return t
+
+
+def paper3_terms(k: int) -> list[str]:
+    """The ablation's "no storage regressors": the linear regressor of Paper III per chain (states, inputs, 1)."""
+    return ["1", f"x{k}", ("x2" if k == 1 else "x1"), "u1", "u2", "u3", "u4"]
+
+
+#: numbers of storage terms per chain the term selection tries, beyond Paper III's linear regressor [chosen]
+EXTRA_TERM_COUNTS = (0, 2, 4, 6, 9)
+#: the multi-step horizon of the term selection [samples of 0.5 s]: 80 s, the NMPC's horizon
+SELECTION_HORIZON = 160
+
+
+def _equation_error(tmpl: Any, recs: Sequence[tuple[np.ndarray, np.ndarray]], k: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(Phi, b) of chain k's equation error (Euler difference quotient against the terms at the measured outputs)."""
+    s = tmpl.structure_
+    E = s.exponents[np.flatnonzero(s.owner == k)]
+    A, b = [], []
+    for z, y in recs:
+        WS, _, _, _ = tmpl._rows(z, carry=False)
+        v = np.column_stack([y[:-1], WS[1:]])
+        A.append(np.prod(v[:, None, :] ** E[None], axis=2))
+        b.append((y[1:, k] - y[:-1, k]) / tmpl.ts_model)
+    return np.vstack(A), np.concatenate(b)
+
+
+def _rpem_ls(terms: list[list[str]], recs: Sequence[tuple[np.ndarray, np.ndarray]], dt: float, ridge: float
+             ) -> tuple[Any, np.ndarray]:
+    from ident.rpem import RecursivePEM
+
+    tmpl = RecursivePEM(n_states=1, terms=terms, sampling_period=dt, alpha=1.0)
+    tmpl._setup(len(CONTROL_FEATURES), 2)
+    theta = np.zeros(tmpl.structure_.n_params)
+    for k in range(2):
+        A, b = _equation_error(tmpl, recs, k)
+        theta[tmpl.structure_.owner == k] = np.linalg.solve(A.T @ A + ridge * len(b) * np.eye(A.shape[1]), A.T @ b)
+    return tmpl, theta
+
+
+def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, validation: Sequence[Any] | None = None,
+                         multistep_horizon: int = 0, max_nfev: int = 10, ridge: float = 1e-3
+                         ) -> tuple[Any, dict[str, Any]]:
+    """The RPEM for the NMPC: two one-state chains (log NOx slip ratio, log NH3) on :data:`CONTROL_FEATURES`.
+
+    The regressor of each chain is Paper III's linear one (:func:`paper3_terms`) plus, with ``storage_terms``, the
+    storage-capable candidates of :func:`rpem_storage_terms` in the order of the thesis' forward selection
+    (orthogonal least squares on the equation error), as many as :data:`EXTRA_TERM_COUNTS` allows with the best
+    multi-step prediction FIT over :data:`SELECTION_HORIZON` samples on the ``validation`` records (default: the
+    last record; Shook, Mohtadi and Shah 1991: the predictor the NMPC uses). Parameters: ridge equation-error
+    estimate, refined with ``multistep_horizon`` > 0 by the multi-step prediction error
+    (:func:`ident.rpem.multistep.fit_multistep`). Returns the fitted :class:`~ident.rpem.RecursivePEM` (inputs:
+    scaled features) and the JSON-able description the NMPC needs."""
+    from ident.rpem.multistep import fit_multistep, rpem_from_theta
+    from ident.rpem.storage_terms import ols_order
+
+    zs, ys = np.asarray(RPEM_FEATURE_SCALE), np.asarray(RPEM_OUTPUT_SCALE)
+    recs = [(z * zs, y * ys) for z, y in control_arrays(records)]
+    dt = float(records[0].dt)
+    base = [paper3_terms(k) for k in (1, 2)]
+    candidates = [base]
+    selection: dict[str, Any] = {}
+    if storage_terms:
+        full = [rpem_storage_terms(k) for k in (1, 2)]
+        tmpl, _ = _rpem_ls(full, recs, dt, ridge)
+        order = []
+        for k in range(2):
+            A, b = _equation_error(tmpl, recs, k)
+            forced = [full[k].index(t) for t in base[k]]
+            order.append([full[k][i] for i in ols_order(A, b, A.shape[1], forced=forced)])
+        candidates = [[o[:len(base[k]) + n] for k, o in enumerate(order)] for n in EXTRA_TERM_COUNTS]
+    val = list(validation) if validation is not None else list(records[-1:])
+    best = None
+    for terms in candidates:
+        tmpl, theta = _rpem_ls(terms, recs, dt, ridge)
+        if multistep_horizon > 0:
+            theta = fit_multistep(tmpl, recs, horizon=int(multistep_horizon), theta0=theta, ridge=1e-5,
+                                  max_nfev=max_nfev)
+        model = rpem_from_theta(tmpl, theta, len(CONTROL_FEATURES), 2)
+        info = _rpem_info(terms, zs, ys, multistep_horizon, len(records))
+        score = np.mean([k_step_fit(model.to_casadi(), info, r, SELECTION_HORIZON) for r in val]) if storage_terms \
+            else 0.0
+        score = float(score) if np.isfinite(score) else -np.inf
+        selection[str(len(terms[0]) - len(base[0]))] = score
+        if best is None or score > best[0]:
+            best = (score, model, info)
+    _, model, info = best
+    info["selection_kstep_fit_percent"] = selection
+    return model, info
+
+
+def _rpem_info(terms: list[list[str]], zs: np.ndarray, ys: np.ndarray, multistep_horizon: int, n_records: int
+               ) -> dict[str, Any]:
+    lo = ys * np.log([1e-4, 1e-2]) - 0.2   # log floors of the outputs (ident.control_relevant), a margin below
+    hi = ys * np.log([2.0, 5000.0])         # NOx ratio 2, NH3 5000 ppm
+    return {"kind": "rpem", "features": list(CONTROL_FEATURES), "z_mean": [0.0] * len(zs),
+            "z_scale": (1.0 / zs).tolist(), "y_mean": [0.0, 0.0], "y_scale": (1.0 / ys).tolist(),
+            "nox_kind": NOX_KIND, "nh3_kind": NH3_KIND, "state_bounds": [lo.tolist(), hi.tolist()],
+            "initial_state": (ys * np.log([1.0, 1e-2])).tolist(), "terms": [list(t) for t in terms],
+            "multistep_horizon": int(multistep_horizon), "n_records": n_records}
+
+
+def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots: int = 5, max_nfev: int = 40
+                       ) -> tuple[Any, dict[str, Any]]:
+    """The Hammerstein-Wiener model for the NMPC: one two-output model (log NOx slip ratio, log NH3) on the
+    standardised :data:`CONTROL_FEATURES`, piecewise-linear input blocks (identity on the surplus, which enters
+    both signs), linear dynamics, identity output blocks (the log outputs carry the spill-over's nonlinearity), on
+    the records end to end (each record's first minute unweighted). Returns the fitted model and its description."""
+    from ident.hammerstein_wiener import HammersteinWiener
+    from ident.hammerstein_wiener.blocks import Identity, PiecewiseLinear
+
+    arrs = control_arrays(records)
+    Z = np.vstack([z for z, _ in arrs])
+    zm, zsd = Z.mean(axis=0), Z.std(axis=0)
+    zm[0] = 0.0   # the surplus keeps its zero (no dose, no surplus)
+    Uc, Yc, W = concat_records([(z - zm) / zsd for z, _ in arrs], [y for _, y in arrs], warmup=120)
+    ym, ysd = Yc.mean(axis=0), Yc.std(axis=0)
+    blocks = [Identity() if f.startswith("surplus") else PiecewiseLinear(n_knots) for f in CONTROL_FEATURES]
+    model = HammersteinWiener(input_blocks=blocks, output_block=Identity(), nb=nb, nf=nf, nk=1, max_nfev=max_nfev,
+                              initial="zero").fit(Uc, (Yc - ym) / ysd, sample_weight=W)
+    info = {"kind": "hammerstein_wiener", "features": list(CONTROL_FEATURES), "z_mean": zm.tolist(),
+            "z_scale": zsd.tolist(), "y_mean": ym.tolist(), "y_scale": ysd.tolist(), "nox_kind": NOX_KIND,
+            "nh3_kind": NH3_KIND, "nb": nb, "nf": nf, "n_records": len(records)}
+    return model, info
+
+
+def k_step_fit(step: Any, info: dict[str, Any], record: Any, horizon: int) -> list[float]:
+    """FIT [%] of the ``horizon``-step predictions (windows of that length; an RPEM restarted from the measured
+    outputs, a Hammerstein-Wiener model from rest) of the exported ``step(x, z)`` on one record, per output (log
+    domain); NaN where the predictions diverge."""
+    from ident.metrics import fit_percent
+
+    (z, y), = control_arrays([record], info["features"])
+    zn = (z - np.asarray(info["z_mean"])) / np.asarray(info["z_scale"])
+    nx = int(step.size1_in(0))
+    f = step.mapaccum(horizon)
+    pred = np.full_like(y, np.nan)
+    ym, ysd = np.asarray(info["y_mean"]), np.asarray(info["y_scale"])
+    for t0 in range(0, len(z) - horizon, horizon):
+        xs = np.zeros(nx)
+        if info["kind"] == "rpem":   # the chain states are the outputs: start from the measured ones, then (input
+            xs[:y.shape[1]] = (y[t0] - ym) / ysd   # derivatives) the previous input
+            xs[y.shape[1]:] = zn[t0][:nx - y.shape[1]]
+        _, yy = f(xs, zn[t0:t0 + horizon].T)
+        pred[t0:t0 + horizon] = np.asarray(yy).T * ysd + ym
+    ok = ~np.isnan(pred[:, 0])
+    # a prediction that leaves the float range is a diverged model: FIT NaN (reported, not raised)
+    return [float(fit_percent(y[ok, j], pred[ok, j])) if np.all(np.isfinite(pred[ok, j])) else float("nan")
+            for j in range(y.shape[1])]

@@ -1,0 +1,110 @@
+"""The black-box NMPCs of the identify-then-control loop (issue 18): identification for control on short records,
+the NMPC on the RPEM and on the Hammerstein-Wiener model running in closed loop, model files, the seed-mean gap."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from control.blackbox import INGREDIENTS, BlackBoxMPC, black_box_nmpc
+from control.evaluation import cycle_segment, evaluate
+from control.loop import SLIP_LIMIT_PPM, ablation_controllers, gap_closed_over_seeds, load_for_control, loop_controller
+from ident.for_control import (
+    CONTROL_FEATURES,
+    fit_hw_for_control,
+    fit_rpem_for_control,
+    hw_linear_export,
+    identification_records,
+    k_step_fit,
+)
+from ident.io import save_model
+
+
+@pytest.fixture(scope="module")
+def records() -> list:
+    return identification_records(seeds=(10, 11), duration_s=240.0)
+
+
+@pytest.fixture(scope="module")
+def models(records: list, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    out = tmp_path_factory.mktemp("bb")
+    info: dict = {"models": {}}
+    for name, (model, minfo) in {"rpem": fit_rpem_for_control(records),
+                                 "hammerstein_wiener": fit_hw_for_control(records, max_nfev=5)}.items():
+        info["models"][name] = {"kind": name, "path": str(save_model(model, out / f"model_{name}")), "info": minfo}
+    return info
+
+
+def test_records_cover_both_designs_and_the_slip_edge(records: list) -> None:
+    assert {r.meta["kind"] for r in records} == {"open_loop", "edge_seeking"}
+    assert all(r.u.shape[1] == 4 and r.y.shape[1] == 3 for r in records)
+    assert max(float(r.y[:, 1].max()) for r in records) > SLIP_LIMIT_PPM   # the data reach the slip edge
+
+
+def test_models_round_trip_and_predict_finitely(models: dict, records: list) -> None:
+    for name in ("rpem", "hammerstein_wiener"):
+        model, info = load_for_control(name, models)
+        assert info["features"] == list(CONTROL_FEATURES) and info["kind"] == name
+        step = model.to_casadi() if name == "rpem" else hw_linear_export(model)[0]
+        fits = k_step_fit(step, info, records[0], 20)
+        assert len(fits) == 2 and all(np.isfinite(fits))
+    with pytest.raises(ValueError, match="no identified model"):
+        load_for_control("linear", models)
+
+
+@pytest.mark.parametrize("name", ["mpc_rpem", "mpc_hammerstein_wiener"])
+def test_black_box_nmpc_closes_the_loop(models: dict, name: str) -> None:
+    policy = loop_controller(name, None, models, quick=True)
+    assert isinstance(policy, BlackBoxMPC) and policy.env_kwargs == {"nh3_sensor": True}
+    assert policy.slip_guard is not None and policy.preview and policy.anr_band is not None
+    res = evaluate(policy, cycles=(cycle_segment("whtc", 40.0, name="whtc_0-40s"),), seeds=(0,),
+                   env_kwargs=policy.env_kwargs, name=name)[0]
+    k = res.kpis
+    assert np.isfinite(k["tailpipe_nox_g_per_kwh"]) and k["mean_nh3_slip_ppm"] <= SLIP_LIMIT_PPM
+    stats = policy.stats()
+    assert stats["solves"] == 80 and stats["solver_failures"] < 40
+
+
+def test_ablation_variants_switch_one_ingredient_off(models: dict) -> None:
+    names = ablation_controllers()
+    assert "mpc_rpem-no_preview" in names and "mpc_hammerstein_wiener-no_nh3_sensor" in names
+    p = loop_controller("mpc_rpem-no_offset_free", None, models, quick=True)
+    assert p.model.disturbance == "none"
+    p = loop_controller("mpc_hammerstein_wiener-no_slip_guard", None, models, quick=True)
+    assert p.slip_guard is None
+    model, info = load_for_control("rpem", models)
+    assert black_box_nmpc(model, info, quick=True, anr_band=False).anr_band is None
+    assert set(INGREDIENTS) == {"nh3_sensor", "preview", "offset_free", "slip_guard", "anr_band"}
+    with pytest.raises(ValueError, match="kind"):
+        black_box_nmpc(model, {**info, "kind": "linear"})
+
+
+def _row(nox: float, slip: float) -> dict[str, float]:
+    return {"tailpipe_nox_g_per_kwh": nox, "mean_nh3_slip_ppm": slip}
+
+
+def test_gap_closed_over_seeds_is_the_seed_mean_and_needs_every_seed_within_the_limit() -> None:
+    per_seed = {"whtc": {"lookup_table": [_row(1.0, 1.0), _row(1.0, 1.0)],
+                         "mpc_oracle": [_row(0.5, 1.0), _row(0.0, 1.0)],
+                         "mpc_rpem": [_row(0.75, 2.0), _row(0.5, 3.0)],
+                         "mpc_hammerstein_wiener": [_row(0.5, 2.0), _row(0.4, SLIP_LIMIT_PPM + 1)]}}
+    gaps, excluded = gap_closed_over_seeds(per_seed)
+    assert gaps["rpem"]["whtc"] == pytest.approx(0.5)          # mean of 0.5 and 0.5
+    assert "hammerstein_wiener" not in gaps
+    assert excluded[0]["model"] == "hammerstein_wiener" and "1 of 2 seeds" in excluded[0]["reason"]
+
+
+def test_slip_cap_doses_nothing_while_the_nh3_sensor_reads_above_the_guard(models: dict) -> None:
+    from control.protocol import action_to_rate
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    policy = loop_controller("mpc_rpem", None, models, quick=True)
+    env = UreaSCREnv(cycle=cycle_segment("whtc", 40.0), nh3_sensor=True)
+    obs, _ = env.reset(seed=0)
+    policy.attach(env)
+    for k in range(3):
+        obs = np.asarray(obs, float).copy()
+        obs[5] = 50.0                          # the tailpipe NH3 sensor reads 50 ppm
+        action, _ = policy.predict(obs, None, episode_start=np.array([k == 0]))
+        assert action_to_rate(action, env.max_rate_g_s) == pytest.approx(0.0, abs=1e-9)
+        obs, *_ = env.step(action)
+    assert "slip_capped_steps" in policy.stats()
