@@ -7,15 +7,12 @@
 An economic MPC fills the NH3 storage as far as its terminal cost lets it: little storage means NOx breakthrough
 at load steps, a full store slips at the next heat-up. The knob per controller (:data:`KNOBS`):
 
-* ``identified`` (grey-box NMPC, no preview): the terminal value of stored NH3 [g AdBlue equivalent per mol];
-* ``identified_preview`` (the same NMPC with the cycle preview of the engine-out disturbances): the same knob;
-* ``identified_nh3`` (``identified_preview`` whose EKF also reads a tailpipe NH3 sensor): the same knob;
-* ``lookup_table`` (the industrial baseline, :class:`control.baselines.LookupTableDosing`): the window level
-  ``anr_scale`` of its ANR map;
-* ``oracle_storage``: the oracle's terminal value of stored NH3 [g/mol] at its chosen safe slip;
+* ``identified`` (grey-box NMPC, no preview), ``identified_preview`` (with the cycle preview), ``identified_nh3``
+  (with the preview and an EKF that also reads the tailpipe NH3 sensor): the terminal value of stored NH3 [g/mol];
+* ``lookup_table`` (:class:`control.baselines.LookupTableDosing`): the window level ``anr_scale`` of its ANR map;
 * ``oracle`` (first-principles NMPC with the cycle preview): the *safe slip* [ppm] that sets its safe coverage,
   the coverage whose desorption at the hottest temperature of the next 120 s gives that slip (terminal penalty
-  above it; the storage value stays at its 200 g/mol): the oracle's slip handling, chosen to use the slip budget.
+  above it); ``oracle_storage``: its terminal value of stored NH3 [g/mol] at the chosen safe slip.
 
 Each value is run in closed loop on seeded random cycles (``cycle="random"``, seeds ``--seeds``; the
 identification records use seeds 1-3, the benchmarks the hot WHTC and WHSC) and the rule of the look-up table's
