@@ -34,14 +34,15 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from scr_env import catalyst_data as cd
+from scr_env.constants import ATMOSPHERIC_PRESSURE_PA, GAS_CONSTANT_J_MOL_K
 from scr_env.lab import LAB_CELLS, STANDARD_TEMPERATURE_K
 from scr_env.params import AGEING_TABLE, MAX_AGE_H, CatalystParams, pack
 from scr_env.physics.kernel import catalyst_chemistry, solve_coverage
 
 R_CATS = 8.3145  # J/(mol K), the gas constant of cats (arrhenius_rate_const)
-R = 8.314462618  # J/(mol K), CODATA 2018
+R = GAS_CONSTANT_J_MOL_K  # J/(mol K), CODATA 2018
 GHSV_STD_PER_H = 60000.0  # 1/h at 0 C, 1 atm (CLEERS)
-FLOW_PER_M3 = GHSV_STD_PER_H / 3600.0 * 101325.0 / (R * STANDARD_TEMPERATURE_K)  # mol/s per m3 catalyst
+FLOW_PER_M3 = GHSV_STD_PER_H / 3600.0 * ATMOSPHERIC_PRESSURE_PA / (R * STANDARD_TEMPERATURE_K)  # mol/s per m3 catalyst
 
 # --- the cats v7 numbers used (rxns_v7.py; A in L, mol, min; E in J/mol) --------------------------------------------
 #: adsorption equilibria (A, dH [J/mol], dS [J/(mol K)]): K = exp(dS/R) exp(-dH/(R T)) [L/mol]
@@ -79,7 +80,7 @@ def _k(name: str, t_k: float) -> float:
 def cats_site_loading(t_k: float) -> tuple[float, ...]:
     """(q1, q2a, q2b, q3, free Z1CuOH, free Z2Cu) [mol/L] of the unaged cats sites in equilibrium with the lumping
     feed (300 ppm NH3, 5 % H2O) at ``t_k`` [K]."""
-    c_tot = 101325.0 / (R * t_k) / 1000.0  # mol/L
+    c_tot = ATMOSPHERIC_PRESSURE_PA / (R * t_k) / 1000.0  # mol/L
     c_nh3, c_h2o = CATS_FEED["nh3"] * c_tot, CATS_FEED["h2o"] * c_tot
     kq = {n: math.exp(ds / R_CATS) * math.exp(-dh / (R_CATS * t_k)) for n, (dh, ds) in CATS_EQUILIBRIA.items()}
     o1, o2, o3 = CATS_SITES_UNAGED
@@ -94,7 +95,7 @@ def cats_lumped_constants(t_k: float) -> dict[str, float]:
     """The cats constants per stored NH3 (per nitrate for its fates) at ``t_k``, in 1/s and per unit mole fraction
     at 1 atm: k_std (at 10 % O2, order 1 in O2 as in cats), k_an, k_an_no, k_an_dec, k_an_n2o."""
     q1, q2a, q2b, q3, s1, s2 = cats_site_loading(t_k)
-    c_tot = 101325.0 / (R * t_k) / 1000.0
+    c_tot = ATMOSPHERIC_PRESSURE_PA / (R * t_k) / 1000.0
     stored = q1 + q2a + 2.0 * q2b + q3  # mol NH3 per L
     o2 = CATS_FEED["o2"] * c_tot
     std = (_k("r13", t_k) * q1 + _k("r14", t_k) * q2a + _k("r15", t_k) * q2b
@@ -116,7 +117,7 @@ def nitrate_route(a_std_m3_mol_s: float, e_std_j_mol: float) -> dict[str, float]
     worst = 0.0
     t_k = NITRATE_FIT_T_C + 273.15
     cats = [cats_lumped_constants(t) for t in t_k]
-    c_total = 101325.0 / (R * t_k)  # mol/m3
+    c_total = ATMOSPHERIC_PRESSURE_PA / (R * t_k)  # mol/m3
     lam = a_std_m3_mol_s * np.exp(-e_std_j_mol / (R * t_k)) * c_total / np.array([c["k_std"] for c in cats])
     for key, field, per_conc in (("k_an", "an", True), ("k_an_no", "an_no", True), ("k_an_dec", "an_dec", False),
                                  ("k_an_n2o", "an_n2o", False)):

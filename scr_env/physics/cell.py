@@ -58,6 +58,9 @@ from __future__ import annotations
 
 from math import exp, log, sqrt  # rebound per backend (see the module docstring)
 
+from scr_env.constants import ATMOSPHERIC_PRESSURE_PA as _P_ATM  # Pa, the cell runs at 1 atm
+from scr_env.constants import GAS_CONSTANT_J_MOL_K as _R  # J/(mol K), CODATA 2018
+
 #: names of the per-site rate constants, the order :func:`arrhenius_constants` returns and :func:`cell_balance` takes
 RATE_CONSTANT_NAMES = ("k_ads", "k_des", "e_des_gamma", "k_std", "k_n2o", "k_ox", "k_ox_no", "k_ox_n2o", "k_no_ox",
                        "k_no2_red", "k_an", "k_an_no", "k_an_dec", "k_an_n2o")
@@ -69,13 +72,11 @@ N_RATE_CONSTANTS = len(RATE_CONSTANT_NAMES)
 # (the heat-capacity correction changes K_p by under 3 % there) [chosen]. K_p in atm^-1/2.
 NO_OXIDATION_DH_J_MOL = 33180.0 - 90250.0  # J/mol
 NO_OXIDATION_DS_J_MOL_K = 240.06 - 210.76 - 0.5 * 205.15  # J/(mol K)
-_R = 8.314462618  # J/(mol K), CODATA 2018 (scr_env.constants.GAS_CONSTANT_J_MOL_K)
 #: temperatures [K] of the two ageing factors of the SCR sites (scr_env.params.AGEING_TABLE "activity_200c" and
 #: "activity_550c"): log-linear in 1/T between them, held beyond [chosen: the CLEERS ages span 250-550 C]
 SCR_FACTOR_ANCHORS_K = (473.15, 823.15)
 _U_LO = 1.0 / (_R * SCR_FACTOR_ANCHORS_K[0])
 _U_HI = 1.0 / (_R * SCR_FACTOR_ANCHORS_K[1])
-_P_ATM = 101325.0  # Pa, the cell runs at 1 atm (scr_env.constants.ATMOSPHERIC_PRESSURE_PA)
 
 
 def select(condition, if_true, if_false):  # rebound per backend
