@@ -349,6 +349,7 @@ class BlackBoxMPC(NonlinearMPC):
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": 60, "ipopt.tol": 1e-6,
                 "ipopt.acceptable_tol": 1e-3, "ipopt.acceptable_iter": 3, "ipopt.warm_start_init_point": "yes",
                 "ipopt.sb": "yes", "ipopt.mu_init": 1e-3} if self.solver == "ipopt" else {"print_time": False}
+        opts["show_eval_warnings"] = False  # NaN/Inf in the NLP is a failed solve (counted), not a printed line (#23)
         opts.update(self.solver_options or {})
         self._solver = ca.nlpsol("mpc", self.solver, {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}, opts)
         self._H, self._nx = H, nx
