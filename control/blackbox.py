@@ -32,7 +32,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from control.mpc import N_DISTURBANCE, MPCWeights, NonlinearMPC
+from control.mpc import N_DISTURBANCE, MPCWeights, NonlinearMPC, solver_defaults
 from control.protocol import rate_to_action
 from ident.control_relevant import FeatureMap, nh3_ppm_from_output, nox_ppm_from_output
 from scr_env.constants import NH3_MOL_PER_G_ADBLUE, NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
@@ -346,11 +346,7 @@ class BlackBoxMPC(NonlinearMPC):
         self._lbg, self._ubg = np.array(lbg), np.array(ubg)
         wv = ca.vertcat(ca.vec(X), U, S)
         pv = ca.vertcat(x0, ca.vec(D), Pd, u_prev)
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": 60, "ipopt.tol": 1e-6,
-                "ipopt.acceptable_tol": 1e-3, "ipopt.acceptable_iter": 3, "ipopt.warm_start_init_point": "yes",
-                "ipopt.sb": "yes", "ipopt.mu_init": 1e-3} if self.solver == "ipopt" else {"print_time": False}
-        opts["show_eval_warnings"] = False  # NaN/Inf in the NLP is a failed solve (counted), not a printed line (#23)
-        opts.update(self.solver_options or {})
+        opts = {**solver_defaults(self.solver), **(self.solver_options or {})}
         self._solver = ca.nlpsol("mpc", self.solver, {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}, opts)
         self._H, self._nx = H, nx
 

@@ -208,6 +208,18 @@ class PredictionModel(Protocol):
         """The model's default state estimator (used when the controller is given none)."""
 
 
+def solver_defaults(solver: str) -> dict[str, Any]:
+    """The quiet ``nlpsol`` options every NMPC of the project starts from (IPOPT: warm start, at most 60 iterations,
+    no output; other solvers: no timing output). NaN/Inf in the NLP's functions is a failed solve, counted by kind
+    (``nonfinite_model``), not a printed line."""
+    opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": 60, "ipopt.tol": 1e-6,
+                            "ipopt.acceptable_tol": 1e-3, "ipopt.acceptable_iter": 3,
+                            "ipopt.warm_start_init_point": "yes", "ipopt.sb": "yes",
+                            "ipopt.mu_init": 1e-3} if solver == "ipopt" else {"print_time": False}
+    opts["show_eval_warnings"] = False
+    return opts
+
+
 class NonlinearMPC:
     """Economic NMPC with a soft NH3-slip constraint (module docstring). Satisfies the policy protocol.
 
@@ -430,13 +442,7 @@ class NonlinearMPC:
 
     def _nlpsol(self, name: str, solver: str, options: dict | None) -> ca.Function:
         """The NLP's ``nlpsol`` with ``solver``'s quiet defaults updated by ``options``."""
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": 60, "ipopt.tol": 1e-6,
-                "ipopt.acceptable_tol": 1e-3, "ipopt.acceptable_iter": 3, "ipopt.warm_start_init_point": "yes",
-                "ipopt.sb": "yes", "ipopt.mu_init": 1e-3} if solver == "ipopt" else {"print_time": False}
-        # NaN/Inf in the NLP's functions is a failed solve, counted by kind (nonfinite_model), not a printed line
-        opts["show_eval_warnings"] = False
-        opts.update(options or {})
-        return ca.nlpsol(name, solver, self._nlp, opts)
+        return ca.nlpsol(name, solver, self._nlp, {**solver_defaults(solver), **(options or {})})
 
     # ------------------------------------------------------------------------------------------------- acting
     def _disturbances(self, observation: np.ndarray) -> np.ndarray:
