@@ -24,8 +24,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from experiments._runs import run_folder, write_json
 from scr_env.benchmark import ANCHORS_PATH, episode_metrics
 from scr_env.tasks import TASKS, get_task
@@ -36,30 +34,6 @@ REFERENCE_KINDS = {
              "(without the actuator lag)",
     "oracle": "oracle_mpc: control.factory.oracle_mpc() (NMPC on the first-principles catalyst of the episode, "
               "privileged state, cycle preview)"}
-LIMIT_BUDGET_PPM = 10.0  # ppm, the Euro VI mean-slip limit the reference respects
-
-
-def limit_reference(task: Any) -> list[dict[str, Any]]:
-    """The stored clairvoyant limit of every episode's plant, as :func:`scr_env.benchmark.episode_metrics` rows
-    (``condition``, ``seed``, ``kpis``, ``wall_time_s``). The plant of an episode is its catalyst: the condition's
-    ``age_h`` (0 h is the fresh catalyst) and, for a randomised catalyst, the reset seed that draws it; sensor-noise
-    seeds of one plant share its limit."""
-    from control.limit import stored_limit
-
-    rows = []
-    for condition, seed in task.protocol.episodes():
-        plant = {**task.evaluation, **condition}
-        kwargs = {k: v for k, v in plant.items() if k in ("age_h", "randomize") and float(v) != 0.0}
-        rec = stored_limit(task.protocol.cycle, LIMIT_BUDGET_PPM, env_kwargs=kwargs or None,
-                           seed=seed if "randomize" in kwargs else 0)
-        dose = np.asarray(rec.dose_g_s, dtype=float)
-        chatter = float(np.abs(np.diff(dose)).sum() / (dose.size * rec.dt / 3600.0))  # g/s per hour
-        kpis = {"tailpipe_nox_g_per_kwh": float(rec), "mean_nh3_slip_ppm": float(rec.mean_nh3_slip_ppm),
-                "peak_nh3_slip_ppm": float(rec.peak_nh3_slip_ppm), "adblue_g": float(rec.adblue_g),
-                "command_total_variation_g_s_per_h": chatter, "adblue_total_variation_g_s_per_h": chatter,
-                "nox_conversion": float(rec.replay.get("nox_conversion", float("nan")))}
-        rows.append({"condition": condition, "seed": seed, "kpis": kpis, "wall_time_s": 0.0})
-    return rows
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -73,6 +47,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--max-steps", type=int, default=None, help="cut episodes short (smoke tests only)")
     p.add_argument("--json", type=Path, default=None, help="also write the result here")
     return p.parse_args(argv)
+
+
 
 
 def _read(path: Path) -> dict[str, Any]:
@@ -93,13 +69,14 @@ def main(argv: list[str] | None = None) -> dict:
         return data
     from control.baselines import LookupTableDosing
     from control.factory import oracle_mpc
+    from control.limit import task_limit_metrics
 
     tasks = [get_task(t) for t in (args.tasks or list(TASKS))]
     for task in tasks:
         print(f"{task.id}: {task.protocol.n_episodes} episodes", flush=True)
         t0 = time.perf_counter()
         lut = episode_metrics(LookupTableDosing(), task, args.max_steps, progress=True)
-        ref = (limit_reference(task) if args.reference == "limit"
+        ref = (task_limit_metrics(task) if args.reference == "limit"
                else episode_metrics(oracle_mpc(quick=args.quick), task, args.max_steps, progress=True))
         episodes = [{"condition": a["condition"], "seed": a["seed"], "lookup_table": a["kpis"], "reference": b["kpis"],
                      "wall_time_s": {"lookup_table": a["wall_time_s"], "reference": b["wall_time_s"]}}

@@ -49,6 +49,7 @@ from control.limit.stored import (
     stored_limit,
     stored_limit_path,
     stored_limits,
+    task_limit_metrics,
     write_limit_document,
 )
 
@@ -72,5 +73,6 @@ __all__ = [
     "stored_limit",
     "stored_limit_path",
     "stored_limits",
+    "task_limit_metrics",
     "write_limit_document",
 ]

@@ -284,3 +284,27 @@ def pareto_figure(limit: Mapping[str, Any], path: str | os.PathLike,
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+def task_limit_metrics(task: Any, budget_ppm: float = REFERENCE_BUDGET_PPM,
+                       path: str | os.PathLike | None = None) -> list[dict[str, Any]]:
+    """The stored clairvoyant limit of every evaluation episode's plant of a benchmark task (:mod:`scr_env.tasks`),
+    as :func:`scr_env.benchmark.episode_metrics` rows (``condition``, ``seed``, ``kpis``, ``wall_time_s``): the
+    reference (score 100) of the RL benchmark (``python -m experiments.rl_anchors``). The plant of an episode is its
+    catalyst: the condition's ``age_h`` (0 h is the fresh catalyst) and, for a randomised catalyst, the reset seed
+    that draws it; sensor-noise seeds of one plant share its limit. The chatter KPIs are the total variation of the
+    optimal dose [g/s per hour]. A plant not stored raises ValueError (:func:`stored_limit`)."""
+    rows = []
+    for condition, seed in task.protocol.episodes():
+        plant = {**task.evaluation, **condition}
+        kwargs = {k: v for k, v in plant.items() if k in ("age_h", "randomize") and float(v) != 0.0}
+        rec = stored_limit(task.protocol.cycle, budget_ppm, env_kwargs=kwargs or None,
+                           seed=seed if "randomize" in kwargs else 0, path=path)
+        dose = np.asarray(rec.dose_g_s, dtype=float)
+        chatter = float(np.abs(np.diff(dose)).sum() / (dose.size * rec.dt / 3600.0))  # g/s per hour
+        kpis = {"tailpipe_nox_g_per_kwh": float(rec), "mean_nh3_slip_ppm": float(rec.mean_nh3_slip_ppm),
+                "peak_nh3_slip_ppm": float(rec.peak_nh3_slip_ppm), "adblue_g": float(rec.adblue_g),
+                "command_total_variation_g_s_per_h": chatter, "adblue_total_variation_g_s_per_h": chatter,
+                "nox_conversion": float(rec.replay.get("nox_conversion", float("nan")))}
+        rows.append({"condition": condition, "seed": seed, "kpis": kpis, "wall_time_s": 0.0})
+    return rows

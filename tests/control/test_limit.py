@@ -296,3 +296,19 @@ def test_fingerprint_tracks_the_plant_not_the_comments(tmp_path, monkeypatch):
     assert _source_digest(importlib.reload(a)) == digest
     mod.write_text('"""doc"""\n\ndef f(x):\n    """doc"""\n    return 3.0 * x\n', encoding="utf-8")
     assert _source_digest(importlib.reload(a)) != digest
+
+
+def test_task_limit_metrics_are_the_stored_limit_of_each_episodes_plant():
+    """The RL benchmark's reference rows: one per evaluation episode of the task, the stored 10 ppm limit of its plant
+    (the WHTC task's episodes share the fresh catalyst's limit; sensor-noise seeds share it)."""
+    from scr_env.tasks import get_task
+
+    task = get_task("WHTC")
+    rows = L.task_limit_metrics(task)
+    assert len(rows) == task.protocol.n_episodes
+    want = L.stored_limit("whtc", 10.0, check_plant=False)
+    for row in rows:
+        assert set(row) == {"condition", "seed", "kpis", "wall_time_s"}
+        assert row["kpis"]["tailpipe_nox_g_per_kwh"] == float(want)
+        assert row["kpis"]["mean_nh3_slip_ppm"] <= 10.0 * 1.01
+        assert row["kpis"]["command_total_variation_g_s_per_h"] >= 0.0
