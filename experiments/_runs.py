@@ -8,15 +8,13 @@ the same folder, then ``os.replace``): a full disk or an interrupt leaves the pr
 """
 from __future__ import annotations
 
-import contextlib
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from scr_env.fileio import atomic_path, atomic_write_text, check_output_file, check_output_folder, write_json
 
-__all__ = ["run_folder", "save_figure", "save_results", "write_json", "write_text"]
+__all__ = ["run_folder", "save_results", "write_figure", "write_json", "write_text"]
 
 
 def run_folder(name: str, root: str | Path = "runs", json_path: str | Path | None = None,
@@ -49,11 +47,16 @@ def write_text(path: str | Path, text: str) -> Path:
     return atomic_write_text(path, text)
 
 
-@contextlib.contextmanager
-def save_figure(path: str | Path) -> Iterator[Path]:
-    """``with save_figure(path) as tmp: fig.savefig(tmp)``: the figure replaces ``path`` only once fully written."""
+def write_figure(fig: Any, path: str | Path, dpi: int = 110) -> Path:
+    """Save a matplotlib figure atomically (it replaces ``path`` only once fully written; the format from the
+    suffix, PNG without one) and close it; return ``path``."""
+    from control.plots import pyplot
+
+    path = Path(path)
     with atomic_path(path) as tmp:
-        yield tmp
+        fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".").lower() or "png")
+    pyplot().close(fig)
+    return path
 
 
 def save_results(out: Path, filename: str, doc: Any, json_path: str | Path | None = None) -> Path:

@@ -24,7 +24,7 @@ import numpy as np
 
 from control.baselines import FeedforwardDosing
 from control.plots import pyplot
-from experiments._runs import run_folder, save_figure, write_json, write_text
+from experiments._runs import run_folder, write_figure, write_json, write_text
 from scr_env.rollout import Trajectory, rollout
 
 #: A minimal open-loop dosing map: ANR 0 below 200 C, 0.9 above 250 C, linear in between (demo only; the
@@ -55,9 +55,7 @@ def _figure(tr: Trajectory, path: Path) -> None:
     fig.suptitle(f"{tr.cycle.upper()}: NOx conversion {100 * k['nox_conversion']:.1f} %, tailpipe "
                  f"{k['tailpipe_nox_g_per_kwh']:.3f} g/kWh, mean NH3 slip {k['mean_nh3_slip_ppm']:.1f} ppm")
     fig.tight_layout()
-    with save_figure(path) as tmp:
-        fig.savefig(tmp, dpi=90)
-    plt.close(fig)
+    write_figure(fig, path, dpi=90)
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -9,7 +9,7 @@ import argparse
 from pathlib import Path
 
 from control.plots import pyplot
-from experiments._runs import save_figure, write_json
+from experiments._runs import write_figure, write_json
 from scr_env.cycles import ExhaustTrace, load_cycle, random_cycle
 
 _SIGNALS = (
@@ -42,9 +42,7 @@ def plot(trace: ExhaustTrace, title: str, path: Path) -> None:
     axes[-1].set_xlabel("time [s]")
     axes[0].set_title(f"{title}: positive work {trace.positive_work_kwh:.1f} kWh")
     fig.tight_layout()
-    with save_figure(path) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    write_figure(fig, path, dpi=120)
 
 
 def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from control.plots import pyplot
-from experiments._runs import run_folder, save_figure, write_json
+from experiments._runs import run_folder, write_figure, write_json
 from ident.plant_data import PAPER4_BASE_ANR, PAPER4_DESIGNS, PAPER4_DT_S, PAPER4_N_SAMPLES, PAPER4_SEGMENT_START_S
 from ident.thesis.paper3 import (
     ALPHA,
@@ -64,9 +64,7 @@ def plot(d: dict[str, Any], sims: dict[str, tuple], rows: list[dict], out: Path,
     fig.suptitle("Paper III on the simulator: tailpipe NOx, validation data (last 25 %)")
     fig.tight_layout()
     paths = [out / "validation_output.png"]
-    with save_figure(paths[0]) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    write_figure(fig, paths[0], dpi=110)
     if repetition and repetition["summary"]:
         ok = [s for s in repetition["segments"] if "fit_validation" in s]
         ms = list(repetition["summary"])
@@ -86,9 +84,7 @@ def plot(d: dict[str, Any], sims: dict[str, tuple], rows: list[dict], out: Path,
         ax.legend(fontsize=8)
         fig.tight_layout()
         paths.append(out / "repetition_fit.png")
-        with save_figure(paths[1]) as tmp:
-            fig.savefig(tmp, dpi=110)
-        plt.close(fig)
+        write_figure(fig, paths[1], dpi=110)
     return paths
 
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from control.plots import pyplot
-from experiments._runs import run_folder, save_figure, write_json
+from experiments._runs import run_folder, write_figure, write_json
 from ident.dataset import IODataset
 from ident.plant_data import PAPER4_DEFAULT_DESIGN, PAPER4_DESIGNS, PAPER4_N_ESTIMATION, PAPER4_N_SAMPLES, whtc_dataset
 from ident.thesis.paper4 import MODELS, MV_HOLDOUT, PWL_SEGMENTS, diagnose_mv, fit_models, seed_spread
@@ -54,9 +54,7 @@ def plot(sims: dict[str, Any], out: Path, unit: str = "ppm", label: str = "tailp
         fig.suptitle(f"{label}: measured vs simulated, {part} data")
         fig.tight_layout()
         p = out / f"figure_{'5' if part == 'estimation' else '6'}_{part}.png"
-        with save_figure(p) as tmp:
-            fig.savefig(tmp, dpi=110)
-        plt.close(fig)
+        write_figure(fig, p, dpi=110)
         paths.append(p)
     return paths
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runs import run_folder, save_figure, write_json, write_text
+from experiments._runs import run_folder, write_figure, write_json, write_text
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -113,8 +113,7 @@ def main(argv: list[str] | None = None) -> dict:
         curves = {m: [load_policy(p).metadata for p in paths] for m, paths in methods.items()}
         if curves:
             fig = learning_curve_figure(curves, title=f"learning curves ({group})")
-            with save_figure(out / f"learning_curves_{group}.png") as tmp:
-                fig.savefig(tmp, dpi=110, format="png")
+            write_figure(fig, out / f"learning_curves_{group}.png", dpi=110)
     write_json(out / "report.json", report)
     if args.json:
         write_json(args.json, report)

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from control.plots import pyplot
-from experiments._runs import run_folder, save_figure, write_json
+from experiments._runs import run_folder, write_figure, write_json
 from ident.rpem import PAPER2_TERMS, RecursivePEM
 from scr_env.jit import njit
 
@@ -122,9 +122,7 @@ def plot_convergence(history: np.ndarray, chunk: int, path) -> None:
     ax.set_title("RPEM parameter convergence, Paper II example (seed 0; dashed: true values)")
     ax.legend(fontsize=7, ncol=2, loc="lower right")
     fig.tight_layout()
-    with save_figure(path) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    write_figure(fig, path, dpi=120)
 
 
 def main(argv: Sequence[str] | None = None) -> dict:

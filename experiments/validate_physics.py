@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runs import run_folder, save_figure, save_results
+from experiments._runs import run_folder, save_results, write_figure
 from scr_env import catalyst_data as cd
 from scr_env.lab import steady_state
 from scr_env.lab_validation import SPECIES, lab_points, plateau_points, rms_summary, transient_replays
@@ -75,9 +75,7 @@ def plot_lab(preset: str, points: list[dict], path: Path) -> None:
     for a in axes.flat:
         a.grid(alpha=0.3), a.legend(fontsize=7), a.set_xlim(140, 600)
     fig.tight_layout()
-    with save_figure(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    write_figure(fig, path, dpi=110)
 
 
 def plot_ages(preset: str, points: list[dict], path: Path) -> None:
@@ -104,9 +102,7 @@ def plot_ages(preset: str, points: list[dict], path: Path) -> None:
     axes[0, 0].legend(title="age (lines simulated,\nmarkers measured)", fontsize=8)
     fig.suptitle(f"'{preset}' against the five-age CLEERS plateaus (Cu-SSZ-13, hydrothermal ageing)")
     fig.tight_layout()
-    with save_figure(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    write_figure(fig, path, dpi=110)
 
 
 def plot_transients(runs: list[dict], path: Path) -> None:
@@ -127,9 +123,7 @@ def plot_transients(runs: list[dict], path: Path) -> None:
         ax.legend(fontsize=7, ncol=5, loc="upper right")
     axes[-1, 0].set_xlabel("time [min]")
     fig.tight_layout()
-    with save_figure(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+    write_figure(fig, path, dpi=100)
 
 
 def main(argv: list[str] | None = None) -> dict:

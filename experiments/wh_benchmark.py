@@ -26,7 +26,7 @@ import numpy as np
 import scipy.io
 
 from control.plots import pyplot
-from experiments._runs import run_folder, save_figure, write_json
+from experiments._runs import run_folder, write_figure, write_json
 from ident.metrics import fit_percent, rms
 from ident.rpem import PAPER2_TERMS, RecursivePEM
 
@@ -68,9 +68,7 @@ def plot(y_test: np.ndarray, y_sim: np.ndarray, path, title: str) -> None:
     axes[1].set_xlabel("time [s]")
     axes[1].set_ylabel("output [V] (first 1000 test samples)")
     fig.tight_layout()
-    with save_figure(path) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    write_figure(fig, path, dpi=120)
 
 
 def main(argv: Sequence[str] | None = None) -> dict:

@@ -60,3 +60,16 @@ def test_a_given_output_folder_is_created_or_reused_and_checked(tmp_path) -> Non
     assert _runs.run_folder("x", folder=out) == out   # an existing folder is fine
     with pytest.raises(NotADirectoryError, match="not a folder"):
         _runs.run_folder("x", folder=_runs.write_text(tmp_path / "file", "x"))
+
+
+def test_write_figure_writes_the_png_atomically_and_closes_the_figure(tmp_path) -> None:
+    from control.plots import pyplot
+    from experiments._runs import write_figure
+
+    plt = pyplot()
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [1, 0])
+    path = write_figure(fig, tmp_path / "f.png", dpi=50)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not plt.fignum_exists(fig.number)
+    assert [p.name for p in tmp_path.iterdir()] == ["f.png"]  # no temporary file left behind
