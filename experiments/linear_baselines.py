@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_results
 from ident.dataset import IODataset
 from ident.linear import ARX, N4SID, OutputError, StateSpacePEM
 from ident.metrics import compare
@@ -107,9 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         ptxt = f"{pub['fit_estimation']:.2f} / {pub['fit_validation']:.2f} %" if pub else ""
         print(f"{r['model']:8s} {r['n_params']:6d} {r['fit_estimation']:7.2f}% {r['fit_validation']:7.2f}% "
               f"{r['mse_estimation']:8.3f} {r['mse_validation']:8.3f}  {ptxt}")
-    write_json(out / "results.json", result)
-    if args.json:
-        write_json(args.json, result)
+    save_results(out, "results.json", result, args.json)
     finite = all(np.isfinite(r["fit_validation"]) for r in rows)
     return 0 if finite else 1
 

@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_results
 
 BENCHMARK_POLICIES = Path(__file__).resolve().parent.parent / "control" / "policies" / "benchmark"
 
@@ -80,9 +80,7 @@ def main(argv: list[str] | None = None) -> dict:
                     print(f"  bc seed {seed}: {meta['samples']} samples, {meta['wall_time_s']:.1f} s, final MSE "
                           f"{meta['learning_curve']['mse'][-1]:.4f}", flush=True)
             report["groups"][group] = entry
-    write_json(out / "report.json", report)
-    if args.json:
-        write_json(args.json, report)
+    save_results(out, "report.json", report, args.json)
     return report
 
 

@@ -15,7 +15,7 @@ import argparse
 import time
 from typing import Any
 
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_results
 from ident.plant_data import PAPER4_DEFAULT_DESIGN
 from ident.thesis.multisegment import (
     DESIGNS,
@@ -85,9 +85,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    {k:32s} joint {v['joint']['median']:6.1f}, alone {v['m1_alone']['median']:6.1f}, "
                   f"joint better in {v['joint_vs_alone']['wins']}/{v['joint_vs_alone']['n']}")
     result["runtime_s"] = round(time.perf_counter() - t0, 1)
-    write_json(out / "results.json", result)
-    if args.json:
-        write_json(args.json, result)
+    save_results(out, "results.json", result, args.json)
     print(f"\n{result['runtime_s']:.0f} s; results in {out / 'results.json'}")
     return 0
 

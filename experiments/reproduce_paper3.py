@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from control.plots import pyplot
-from experiments._runs import run_folder, write_figure, write_json
+from experiments._runs import run_folder, save_results, write_figure
 from ident.plant_data import PAPER4_BASE_ANR, PAPER4_DESIGNS, PAPER4_DT_S, PAPER4_N_SAMPLES, PAPER4_SEGMENT_START_S
 from ident.thesis.paper3 import (
     ALPHA,
@@ -175,9 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         result["figures"] = [str(p) for p in plot(d, sims, rows, out, result.get("repetition"))]
         print("figures:", ", ".join(result["figures"]))
     result["runtime_s"] = round(time.perf_counter() - t0, 1)
-    write_json(out / "results.json", result)
-    if args.json:
-        write_json(args.json, result)
+    save_results(out, "results.json", result, args.json)
     print(f"runtime {result['runtime_s']} s")
     return 0 if all(np.isfinite(r["fit_validation"]) for r in result["rows"]) else 1
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from control.plots import pyplot
-from experiments._runs import run_folder, write_figure, write_json
+from experiments._runs import run_folder, save_results, write_figure
 from ident.dataset import IODataset
 from ident.plant_data import PAPER4_DEFAULT_DESIGN, PAPER4_DESIGNS, PAPER4_N_ESTIMATION, PAPER4_N_SAMPLES, whtc_dataset
 from ident.thesis.paper4 import MODELS, MV_HOLDOUT, PWL_SEGMENTS, diagnose_mv, fit_models, seed_spread
@@ -147,9 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         result["figures"] = [str(p) for p in plot(sims, out, label=f"tailpipe NOx ({args.design} design)")]
         print("figures:", ", ".join(result["figures"]))
     result["runtime_s"] = round(time.perf_counter() - t0, 1)
-    write_json(out / "results.json", result)
-    if args.json:
-        write_json(args.json, result)
+    save_results(out, "results.json", result, args.json)
     others = [r for d in result.get("other_designs", {}).values() for r in d["rows"]]
     finite = all(np.isfinite(r["fit_validation"]) for r in rows + others)
     return 0 if finite else 1

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runs import run_folder, write_figure, write_json, write_text
+from experiments._runs import run_folder, save_results, write_figure, write_text
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -114,9 +114,7 @@ def main(argv: list[str] | None = None) -> dict:
         if curves:
             fig = learning_curve_figure(curves, title=f"learning curves ({group})")
             write_figure(fig, out / f"learning_curves_{group}.png", dpi=110)
-    write_json(out / "report.json", report)
-    if args.json:
-        write_json(args.json, report)
+    save_results(out, "report.json", report, args.json)
     return report
 
 

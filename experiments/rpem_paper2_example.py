@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from control.plots import pyplot
-from experiments._runs import run_folder, write_figure, write_json
+from experiments._runs import run_folder, save_results, write_figure
 from ident.rpem import PAPER2_TERMS, RecursivePEM
 from scr_env.jit import njit
 
@@ -167,9 +167,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
         "continuous_euler_median_error": float(np.median(cont["euler"])),
         "run_folder": str(out),
     }
-    write_json(out / "result.json", result)
-    if args.json:
-        write_json(args.json, result)
+    save_results(out, "result.json", result, args.json)
     print(f"median max|theta - theta_true| over {args.seeds} seeds: {result['max_abs_error']:.4f} "
           f"(worst {max(errors):.4f})")
     print(f"continuous-time data, alpha = 1: midpoint {result['continuous_midpoint_median_error']:.4f}, "

@@ -23,7 +23,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_results
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -85,9 +85,7 @@ def main(argv: list[str] | None = None) -> dict:
                 runs = list(pool.map(_one, jobs))
         report = {"command": command, "runs": runs, "failed": [r for r in runs if "error" in r]}
     report["wall_time_s"] = round(time.perf_counter() - t0, 1)
-    write_json(out / "report.json", report)
-    if args.json:
-        write_json(args.json, report)
+    save_results(out, "report.json", report, args.json)
     print(f"done in {report['wall_time_s']:.0f} s; report {out / 'report.json'}")
     return report
 

@@ -44,7 +44,7 @@ from control.rl.selection import (
     select,
     validate,
 )
-from experiments._runs import run_folder, write_json
+from experiments._runs import run_folder, save_results, write_json
 from scr_env.fileio import check_output_file
 
 #: reward weights of training [chosen, see control/policies/README.md]: a gram of tailpipe NOx costs 40 g of AdBlue
@@ -186,9 +186,7 @@ def main(argv: list[str] | None = None) -> dict:
               file=sys.stderr)
     elif args.ship:
         report["shipped"] = str(install(json_path, POLICY_DIR, name, {}))
-    write_json(out / "report.json", report)
-    if args.json:
-        write_json(args.json, report)
+    save_results(out, "report.json", report, args.json)
     for c in cycles:
         for n, row in summary[c].items():
             print(f"{c:5s} {n:22s} tailpipe {row['tailpipe_nox_g_per_kwh']:.3f} g/kWh  "

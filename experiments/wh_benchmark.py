@@ -26,7 +26,7 @@ import numpy as np
 import scipy.io
 
 from control.plots import pyplot
-from experiments._runs import run_folder, write_figure, write_json
+from experiments._runs import run_folder, save_results, write_figure
 from ident.metrics import fit_percent, rms
 from ident.rpem import PAPER2_TERMS, RecursivePEM
 
@@ -122,9 +122,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
         "per_method": per_method,
         "run_folder": str(out),
     }
-    write_json(out / "result.json", result)
-    if args.json:
-        write_json(args.json, result)
+    save_results(out, "result.json", result, args.json)
     print(f"selected {selected} (estimation RMS): test RMS error {best['rms_error_mv_test']:.1f} mV "
           f"(Paper II: 97.5 mV); plot and models in {out}")
     return result
