@@ -469,11 +469,12 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
                            q_state=cfg["q_state"], state_bounds=(np.full(nx, -1e3), np.full(nx, 1e3)),
                            initial_state=lambda z0: np.zeros(nx), linear=(A, bfun), **common)
     kw = dict(IDENT_SOLVER)
-    band = (ANR_BAND[0], float(cfg.get("anr_band_hi", ANR_BAND[1])))
+    band_hi = cfg.get("anr_band_hi", ANR_BAND[1])    # None: no band for this model
+    band = None if (band_hi is None or not anr_band) else (ANR_BAND[0], float(band_hi))
     base_w = MPCWeights()
     weights = MPCWeights(nox=float(cfg.get("nox_weight", base_w.nox)), nh3=float(cfg.get("nh3_weight", base_w.nh3)),
                          adblue=base_w.adblue, rate_change=base_w.rate_change, slack=base_w.slack)
-    mpc = BlackBoxMPC(bm, stages=stages, anr_band=band if anr_band else None, preview=preview,
+    mpc = BlackBoxMPC(bm, stages=stages, anr_band=band, preview=preview,
                       slip_guard=(OBS_NH3_SENSOR, SLIP_GUARD_PPM) if (slip_guard and nh3_sensor) else None,
                       terminal_s=cfg["terminal_s"], weights=weights,
                       slip_limit_ppm=float(cfg.get("plan_slip_ppm", SLIP_GUARD_PPM)), **kw)

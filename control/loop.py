@@ -100,15 +100,16 @@ def closed_loop_identification(records: list[Any], validation: list[Any], seeds:
 
 
 def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
-                         closed_loop_iterations: int = CLOSED_LOOP_ITERATIONS, keep_iterations: bool = False
-                         ) -> dict[str, Any]:
+                         closed_loop_iterations: int = CLOSED_LOOP_ITERATIONS, keep_iterations: bool = False,
+                         closed_loop_nmpc: dict[str, Any] | None = None) -> dict[str, Any]:
     """Identification for control (:mod:`ident.for_control`): control-relevant records over the random cycles of
     :data:`ident.for_control.IDENT_SEEDS` (quick: the first :data:`QUICK_IDENT_SEEDS` seeds), the two-output RPEM and
     Hammerstein-Wiener models, saved to ``out``; their k-step FIT [%] on the validation record (random cycle
     :data:`ident.for_control.VALIDATION_SEED`, both designs). With ``ablation``, the models without one
     identification ingredient each (:data:`IDENT_ABLATIONS`). With ``closed_loop_iterations`` > 0 the RPEM is the
     last of :func:`closed_loop_identification` (closed-loop records on the identification cycles), and with
-    ``keep_iterations`` every iteration is kept as a model ``rpem-iter<i>`` too. A failed fit is reported
+    ``keep_iterations`` every iteration is kept as a model ``rpem-iter<i>`` too; ``closed_loop_nmpc``: overrides of
+    the NMPC that runs the closed-loop experiments (:func:`control.blackbox.black_box_nmpc`). A failed fit is reported
     (``{"error": ...}``)."""
     from ident.for_control import (
         DESIGNS,
@@ -134,7 +135,7 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
         def iterated(i: int) -> Any:
             if not iters:
                 iters.extend(closed_loop_identification(records, validation, tuple(seeds), closed_loop_iterations,
-                                                        quick=quick))
+                                                        quick=quick, nmpc_overrides=closed_loop_nmpc))
             return iters[i]
 
         variants[0] = ("rpem", "rpem", lambda r: iterated(-1))

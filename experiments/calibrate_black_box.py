@@ -67,6 +67,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                     help="JSON of an earlier calibrate_black_box run: reuse its identified models")
     ap.add_argument("--closed-loop-iterations", type=int, default=None,
                     help="iterations of closed-loop identification of the RPEM (models rpem-iter<i> kept)")
+    ap.add_argument("--closed-loop-nmpc", default="{}", help="JSON overrides of the closed-loop experiments' NMPC")
     add_arguments(ap)
     args = ap.parse_args(argv)
     if args.workers is None:
@@ -81,7 +82,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     black_box = (json.loads(args.identified.read_text())["identification"] if args.identified is not None
                  else identify_for_control(out) if args.closed_loop_iterations is None
                  else identify_for_control(out, closed_loop_iterations=args.closed_loop_iterations,
-                                           keep_iterations=True))
+                                           keep_iterations=True, closed_loop_nmpc=json.loads(args.closed_loop_nmpc)))
     tasks = [{"model": "lookup_table", "config": {}, "seed": s, "duration": args.duration, "black_box": black_box}
              for s in args.seeds]
     tasks += [{"model": m, "config": c, "seed": s, "duration": args.duration, "black_box": black_box}
