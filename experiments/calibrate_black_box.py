@@ -2,6 +2,12 @@
 
     python -m experiments.calibrate_black_box [--models rpem hammerstein_wiener] [--seeds 5 6] [--duration 600]
         [--configs '{"terminal_s": 0}' '{"anr_band_hi": 2.0}' ...] [--slip-target 8] [--json PATH]
+        [--identified JSON] [--closed-loop-iterations N]
+
+``--identified``: reuse the models of an earlier run (its JSON, key ``identification``) instead of identifying
+again, so a sweep of NMPC settings costs only the closed-loop episodes. ``--closed-loop-iterations N``: identify the
+RPEM by N iterations of closed-loop identification (:func:`control.loop.closed_loop_identification`) and keep every
+iteration as a model ``rpem-iter<i>`` (``--models rpem-iter0 ... rpem``: the calibration KPIs per iteration).
 
 The models are identified as in the loop (:func:`control.loop.identify_for_control`); each configuration (a JSON
 dict of :func:`control.blackbox.black_box_nmpc` overrides; ``{}`` is the current default) runs in closed loop on
@@ -57,6 +63,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--configs", nargs="+", default=["{}"], help="JSON dicts of black_box_nmpc overrides")
     ap.add_argument("--slip-target", type=float, default=8.0, help="mean NH3 slip bound on every cycle [ppm]")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--identified", type=Path, default=None,
+                    help="JSON of an earlier calibrate_black_box run: reuse its identified models")
+    ap.add_argument("--closed-loop-iterations", type=int, default=None,
+                    help="iterations of closed-loop identification of the RPEM (models rpem-iter<i> kept)")
+    ap.add_argument("--closed-loop-nmpc", default="{}", help="JSON overrides of the closed-loop experiments' NMPC")
     add_arguments(ap)
     args = ap.parse_args(argv)
     if args.workers is None:
@@ -68,13 +79,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     except json.JSONDecodeError as exc:
         ap.error(f"--configs: not JSON ({exc})")
     out = run_folder("calibrate_black_box", json_path=args.json)
-    black_box = identify_for_control(out)
+    black_box = (json.loads(args.identified.read_text())["identification"] if args.identified is not None
+                 else identify_for_control(out) if args.closed_loop_iterations is None
+                 else identify_for_control(out, closed_loop_iterations=args.closed_loop_iterations,
+                                           keep_iterations=True, closed_loop_nmpc=json.loads(args.closed_loop_nmpc)))
     tasks = [{"model": "lookup_table", "config": {}, "seed": s, "duration": args.duration, "black_box": black_box}
              for s in args.seeds]
     tasks += [{"model": m, "config": c, "seed": s, "duration": args.duration, "black_box": black_box}
               for m in args.models for c in configs for s in args.seeds]
     rows = run_sweep(episode, tasks, description="calibration", **from_args(args))
     lut = {r["seed"]: r["nox"] for r in rows if r["model"] == "lookup_table"}
+    print("lookup_table per seed:", {s: round(v, 3) for s, v in lut.items()}, flush=True)
     table, chosen = [], {}
     for m in args.models:
         best = None

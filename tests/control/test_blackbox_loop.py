@@ -110,3 +110,22 @@ def test_slip_cap_doses_nothing_while_the_nh3_sensor_reads_above_the_guard(model
         assert action_to_rate(action, env.max_rate_g_s) == pytest.approx(0.0, abs=1e-9)
         obs, *_ = env.step(action)
     assert "slip_capped_steps" in policy.stats()
+
+
+def test_closed_loop_identification_pools_dithered_nmpc_records(records: list) -> None:
+    from control.loop import closed_loop_identification
+
+    its = closed_loop_identification(records[:2], records[2:3], seeds=(10,), iterations=1, duration_s=100.0,
+                                     quick=True)
+    assert [info["closed_loop_iteration"] for _, info in its] == [0, 1]
+    model, info = its[-1]
+    assert info["n_records"] == 3 and len(info["closed_loop"]) == 2      # one cycle and the validation cycle
+    assert all(np.isfinite(r["mean_nh3_slip_ppm"]) for r in info["closed_loop"])
+    step = model.to_casadi()
+    assert all(np.isfinite(k_step_fit(step, info, records[0], 20)))
+
+
+def test_black_box_nmpc_takes_the_weights_and_the_planned_slip_limit(models: dict) -> None:
+    model, info = load_for_control("rpem", models)
+    p = black_box_nmpc(model, info, quick=True, nox_weight=40.0, plan_slip_ppm=5.0)
+    assert p.weights.nox == 40.0 and p.weights.nh3 == 60.0 and p.slip_limit_ppm == 5.0

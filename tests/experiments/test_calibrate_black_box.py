@@ -14,3 +14,24 @@ def test_refuses_seed_zero_and_bad_configs(capsys: pytest.CaptureFixture[str]) -
     with pytest.raises(SystemExit):
         calibrate_black_box.main(["--configs", "{not json"])
     assert "--configs" in capsys.readouterr().err
+
+
+def test_identified_reuses_saved_models_without_identifying(tmp_path, monkeypatch) -> None:
+    import json
+
+    from ident.for_control import fit_rpem_for_control, identification_records
+    from ident.io import save_model
+
+    model, info = fit_rpem_for_control(identification_records(seeds=(10,), duration_s=120.0))
+    ident = {"models": {"rpem": {"kind": "rpem", "path": str(save_model(model, tmp_path / "model_rpem")),
+                                 "info": info}}}
+    (tmp_path / "prev.json").write_text(json.dumps({"identification": ident}))
+
+    def refuse(*a, **k):
+        raise AssertionError("identified again")
+
+    monkeypatch.setattr(calibrate_black_box, "identify_for_control", refuse)
+    doc = calibrate_black_box.main(["--models", "rpem", "--seeds", "5", "--duration", "10", "--identified",
+                                    str(tmp_path / "prev.json"), "--configs", '{"anr_band_hi": null}',
+                                    "--json", str(tmp_path / "out.json")])
+    assert doc["table"][0]["config"] == {"anr_band_hi": None} and len(doc["table"][0]["per_seed"]) == 1
