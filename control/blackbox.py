@@ -328,6 +328,13 @@ class BlackBoxMPC(NonlinearMPC):
                 g.append(U[i] - self.anr_band[1] * ff - self.band_floor_g_s)
                 lbg.append(-ca.inf)
                 ubg.append(0.0)
+                if self.anr_band[0] > 0:
+                    # the lower band, only as far as the rate limit can reach it from the last dose (and the
+                    # injector allows): a bound on parameters only, so it never makes the NLP infeasible
+                    reach = u_prev + self.max_rate_change_g_s2 * (self.dt + sum(self.stages[1:i + 1]) * self.dt)
+                    g.append(U[i] - ca.fmin(ca.fmin(self.anr_band[0] * ff, reach), self.max_rate_g_s))
+                    lbg.append(0.0)
+                    ubg.append(ca.inf)
             flow = d[0]
             cost += h * flow * 1e-6 * (w.nox * NO2_MOLAR_MASS_G_MOL * y[0] + w.nh3 * NH3_MOLAR_MASS_G_MOL * y[1])
             # the slack is per stage of the fine grid: weight it by the stage length relative to the first stage
@@ -469,7 +476,7 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
                            q_state=cfg["q_state"], state_bounds=(np.full(nx, -1e3), np.full(nx, 1e3)),
                            initial_state=lambda z0: np.zeros(nx), linear=(A, bfun), **common)
     kw = dict(IDENT_SOLVER)
-    band = (ANR_BAND[0], float(cfg.get("anr_band_hi", ANR_BAND[1])))
+    band = (float(cfg.get("anr_band_lo", ANR_BAND[0])), float(cfg.get("anr_band_hi", ANR_BAND[1])))
     mpc = BlackBoxMPC(bm, stages=stages, anr_band=band if anr_band else None, preview=preview,
                       slip_guard=(OBS_NH3_SENSOR, SLIP_GUARD_PPM) if (slip_guard and nh3_sensor) else None,
                       terminal_s=cfg["terminal_s"], **kw)

@@ -60,12 +60,15 @@ def held_out(quick: bool) -> list[Any]:
     return [load_cycle(name, dt=0.5) for name in ("whtc", "whsc")]
 
 
-def identify_for_control(out: Path, quick: bool = False, ablation: bool = False) -> dict[str, Any]:
+def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
+                         kinds: tuple[str, ...] = BLACK_BOX, hw_fit: dict[str, Any] | None = None) -> dict[str, Any]:
     """Identification for control (:mod:`ident.for_control`): control-relevant records over the random cycles of
     :data:`ident.for_control.IDENT_SEEDS` (quick: the first :data:`QUICK_IDENT_SEEDS` seeds), the two-output RPEM and
     Hammerstein-Wiener models, saved to ``out``; their k-step FIT [%] on the validation record (random cycle
     :data:`ident.for_control.VALIDATION_SEED`, both designs). With ``ablation``, the models without one
-    identification ingredient each (:data:`IDENT_ABLATIONS`). A failed fit is reported (``{"error": ...}``)."""
+    identification ingredient each (:data:`IDENT_ABLATIONS`). ``kinds``: the model kinds to fit; ``hw_fit``:
+    :func:`ident.for_control.fit_hw_for_control` options (calibration of the model structure). A failed fit is
+    reported (``{"error": ...}``)."""
     from ident.for_control import (
         DESIGNS,
         IDENT_SEEDS,
@@ -82,13 +85,16 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False)
     records = identification_records(seeds)
     validation = identification_records((VALIDATION_SEED,))
     fits: dict[str, Any] = {"rpem": lambda r: fit_rpem_for_control(r, validation=validation),
-                            "hammerstein_wiener": lambda r: fit_hw_for_control(r)}
+                            "hammerstein_wiener": lambda r: fit_hw_for_control(r, **(hw_fit or {}))}
+    fits = {k: f for k, f in fits.items() if k in kinds}
     variants: list[tuple[str, str, Any]] = [(n, n, f) for n, f in fits.items()]
     if ablation:
         over = identification_records(seeds, designs=("overdosing",))
         for n, f in fits.items():
             variants.append((f"{n}-no_control_relevant_excitation", n, lambda r, f=f: f(over)))
-        variants.append(("rpem-no_storage_terms", "rpem", lambda r: fit_rpem_for_control(r, storage_terms=False)))
+        if "rpem" in kinds:
+            variants.append(("rpem-no_storage_terms", "rpem",
+                             lambda r: fit_rpem_for_control(r, storage_terms=False)))
     info: dict[str, Any] = {"data": {"seeds": list(seeds), "designs": list(DESIGNS), "n_records": len(records),
                                      "validation_seed": VALIDATION_SEED}, "models": {}}
     for name, kind, fit in variants:

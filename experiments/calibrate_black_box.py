@@ -2,12 +2,15 @@
 
     python -m experiments.calibrate_black_box [--models rpem hammerstein_wiener] [--seeds 5 6] [--duration 600]
         [--configs '{"terminal_s": 0}' '{"anr_band_hi": 2.0}' ...] [--slip-target 8] [--json PATH]
+        [--hw-fit '{"multistep_horizon": 160}'] [--identified EARLIER.json]
 
 The models are identified as in the loop (:func:`control.loop.identify_for_control`); each configuration (a JSON
 dict of :func:`control.blackbox.black_box_nmpc` overrides; ``{}`` is the current default) runs in closed loop on
 the seeded random cycles ``--seeds`` (``--duration`` seconds each, sensor-noise seed 0), beside the look-up table.
 The rule of :mod:`experiments.calibrate_controllers` picks per model: the lowest mean tailpipe NOx among the
-configurations whose mean NH3 slip stays below ``--slip-target`` on every calibration cycle. The chosen values are
+configurations whose mean NH3 slip stays below ``--slip-target`` on every calibration cycle. ``--hw-fit`` passes
+options to :func:`ident.for_control.fit_hw_for_control` (calibrating the model structure), ``--identified`` reuses
+the models of an earlier ``--json`` instead of identifying again. The chosen values are
 the defaults of :data:`control.blackbox.NMPC_SETTINGS`.
 """
 from __future__ import annotations
@@ -46,6 +49,7 @@ def episode(model: str, config: dict[str, Any], seed: int, duration: float, blac
     stats = policy.stats() if hasattr(policy, "stats") else {}
     return {"model": model, "config": config, "seed": seed, "nox": res.kpis["tailpipe_nox_g_per_kwh"],
             "slip": res.kpis["mean_nh3_slip_ppm"], "peak": res.kpis["peak_nh3_slip_ppm"],
+            "adblue_g": res.kpis.get("adblue_g", float("nan")),
             "failures": stats.get("solver_failures", 0.0), "wall_s": time.perf_counter() - t0}
 
 
@@ -57,6 +61,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--configs", nargs="+", default=["{}"], help="JSON dicts of black_box_nmpc overrides")
     ap.add_argument("--slip-target", type=float, default=8.0, help="mean NH3 slip bound on every cycle [ppm]")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--hw-fit", default="{}", help="JSON dict of ident.for_control.fit_hw_for_control options")
+    ap.add_argument("--identified", type=Path, default=None,
+                    help="reuse the identification of an earlier --json (same --hw-fit), instead of re-identifying")
     add_arguments(ap)
     args = ap.parse_args(argv)
     if args.workers is None:
@@ -68,13 +75,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     except json.JSONDecodeError as exc:
         ap.error(f"--configs: not JSON ({exc})")
     out = run_folder("calibrate_black_box", json_path=args.json)
-    black_box = identify_for_control(out)
+    hw_fit = json.loads(args.hw_fit)
+    if args.identified is not None:
+        black_box = json.loads(args.identified.read_text())["identification"]
+    else:
+        black_box = identify_for_control(out, kinds=tuple(args.models), hw_fit=hw_fit)
     tasks = [{"model": "lookup_table", "config": {}, "seed": s, "duration": args.duration, "black_box": black_box}
              for s in args.seeds]
     tasks += [{"model": m, "config": c, "seed": s, "duration": args.duration, "black_box": black_box}
               for m in args.models for c in configs for s in args.seeds]
     rows = run_sweep(episode, tasks, description="calibration", **from_args(args))
     lut = {r["seed"]: r["nox"] for r in rows if r["model"] == "lookup_table"}
+    print("lookup table per seed (seed, NOx, slip, AdBlue g):",
+          [(r["seed"], r["nox"], r["slip"], r["adblue_g"]) for r in rows if r["model"] == "lookup_table"])
     table, chosen = [], {}
     for m in args.models:
         best = None
@@ -83,14 +96,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             nox, worst = float(np.mean([r["nox"] for r in rs])), max(r["slip"] for r in rs)
             table.append({"model": m, "config": c, "mean_nox_g_per_kwh": nox, "worst_mean_slip_ppm": worst,
                           "lut_mean_nox_g_per_kwh": float(np.mean([lut[r["seed"]] for r in rs])),
-                          "per_seed": [(r["seed"], r["nox"], r["slip"], r["failures"]) for r in rs]})
+                          "per_seed": [(r["seed"], r["nox"], r["slip"], r["failures"], r["adblue_g"]) for r in rs]})
             print(f"{m} {json.dumps(c)}: NOx {nox:.3f} g/kWh (LUT {table[-1]['lut_mean_nox_g_per_kwh']:.3f}), "
                   f"worst mean slip {worst:.2f} ppm, per seed {table[-1]['per_seed']}", flush=True)
             if worst <= args.slip_target and (best is None or nox < best[0]):
                 best = (nox, c)
         chosen[m] = None if best is None else best[1]
-    doc = {"seeds": args.seeds, "duration_s": args.duration, "slip_target_ppm": args.slip_target, "table": table,
-           "chosen": chosen, "identification": black_box}
+    doc = {"seeds": args.seeds, "duration_s": args.duration, "hw_fit": hw_fit, "slip_target_ppm": args.slip_target,
+           "table": table, "chosen": chosen, "identification": black_box}
     print("chosen:", json.dumps(chosen))
     write_json(out / "calibrate_black_box.json", doc)
     if args.json is not None:
