@@ -68,10 +68,10 @@ def test_multistep_refinement_lowers_the_horizon_prediction_error(records: list)
                              [y for _, y in arrs], warmup=120)
     Yn = (Y - np.asarray(info["y_mean"])) / np.asarray(info["y_scale"])
     before = _multistep_cost(model, U, Yn, W, 40)
-    hw_multistep_refine(model, U, Yn, W, horizon=40, max_nfev=5)
+    hw_multistep_refine(model, U, Yn, W, horizon=40, max_nfev=20)
     after = _multistep_cost(model, U, Yn, W, 40)
     assert after < before
-    refined, rinfo = fit_hw_for_control(records, max_nfev=5, multistep_horizon=40, multistep_nfev=5)
+    refined, rinfo = fit_hw_for_control(records, max_nfev=5, multistep_horizon=40, multistep_nfev=20)
     assert rinfo["multistep_horizon"] == 40
     np.testing.assert_allclose(refined.A_, model.A_)
 
