@@ -74,8 +74,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         configs = [json.loads(c) for c in args.configs]
     except json.JSONDecodeError as exc:
         ap.error(f"--configs: not JSON ({exc})")
+    try:
+        hw_fit = json.loads(args.hw_fit)
+    except json.JSONDecodeError as exc:
+        ap.error(f"--hw-fit: not JSON ({exc})")
     out = run_folder("calibrate_black_box", json_path=args.json)
-    hw_fit = json.loads(args.hw_fit)
     if args.identified is not None:
         black_box = json.loads(args.identified.read_text())["identification"]
     else:
