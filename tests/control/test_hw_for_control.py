@@ -78,7 +78,7 @@ def test_multistep_refinement_lowers_the_horizon_prediction_error(records: list)
 
 def test_lower_dose_band_enters_the_nlp_only_when_set(records: list) -> None:
     model, info = fit_hw_for_control(records, max_nfev=2)
-    plain = black_box_nmpc(model, info, quick=True)
+    plain = black_box_nmpc(model, info, quick=True, anr_band_lo=0.0)
     banded = black_box_nmpc(model, info, quick=True, anr_band_lo=0.8)
     assert plain.anr_band[0] == 0.0 and banded.anr_band[0] == 0.8
     plain._build()
