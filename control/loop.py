@@ -104,7 +104,8 @@ def closed_loop_identification(records: list[Any], validation: list[Any], seeds:
 
 def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
                          closed_loop_iterations: int = CLOSED_LOOP_ITERATIONS, keep_iterations: bool = False,
-                         closed_loop_nmpc: dict[str, Any] | None = None) -> dict[str, Any]:
+                         closed_loop_nmpc: dict[str, Any] | None = None, kinds: tuple[str, ...] = BLACK_BOX,
+                         hw_fit: dict[str, Any] | None = None) -> dict[str, Any]:
     """Identification for control (:mod:`ident.for_control`): control-relevant records over the random cycles of
     :data:`ident.for_control.IDENT_SEEDS` (quick: the first :data:`QUICK_IDENT_SEEDS` seeds), the two-output RPEM and
     Hammerstein-Wiener models, saved to ``out``; their k-step FIT [%] on the validation record (random cycle
@@ -113,7 +114,8 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
     last of :func:`closed_loop_identification` (closed-loop records on the identification cycles), and with
     ``keep_iterations`` every iteration is kept as a model ``rpem-iter<i>`` too; ``closed_loop_nmpc``: overrides of
     the NMPC that runs the closed-loop experiments (:func:`control.blackbox.black_box_nmpc`). A failed fit is reported
-    (``{"error": ...}``)."""
+    (``{"error": ...}``). ``kinds``: the model kinds to fit;
+    ``hw_fit``: :func:`ident.for_control.fit_hw_for_control` options (calibration of the model structure)."""
     from ident.for_control import (
         DESIGNS,
         IDENT_SEEDS,
@@ -130,7 +132,8 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
     records = identification_records(seeds)
     validation = identification_records((VALIDATION_SEED,))
     fits: dict[str, Any] = {"rpem": lambda r: fit_rpem_for_control(r, validation=validation),
-                            "hammerstein_wiener": lambda r: fit_hw_for_control(r)}
+                            "hammerstein_wiener": lambda r: fit_hw_for_control(r, **(hw_fit or {}))}
+    fits = {k: f for k, f in fits.items() if k in kinds}
     variants: list[tuple[str, str, Any]] = [(n, n, f) for n, f in fits.items()]
     if closed_loop_iterations > 0:
         iters: list[Any] = []
@@ -149,7 +152,9 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
         over = identification_records(seeds, designs=("overdosing",))
         for n, f in fits.items():
             variants.append((f"{n}-no_control_relevant_excitation", n, lambda r, f=f: f(over)))
-        variants.append(("rpem-no_storage_terms", "rpem", lambda r: fit_rpem_for_control(r, storage_terms=False)))
+        if "rpem" in kinds:
+            variants.append(("rpem-no_storage_terms", "rpem",
+                             lambda r: fit_rpem_for_control(r, storage_terms=False)))
     info: dict[str, Any] = {"data": {"seeds": list(seeds), "designs": list(DESIGNS), "n_records": len(records),
                                      "validation_seed": VALIDATION_SEED}, "models": {}}
     for name, kind, fit in variants:

@@ -2,18 +2,21 @@
 
     python -m experiments.calibrate_black_box [--models rpem hammerstein_wiener] [--seeds 5 6] [--duration 600]
         [--configs '{"terminal_s": 0}' '{"anr_band_hi": 2.0}' ...] [--slip-target 8] [--json PATH]
-        [--identified JSON] [--closed-loop-iterations N]
+        [--identified JSON] [--closed-loop-iterations N] [--hw-fit '{"multistep_horizon": 160}']
 
 ``--identified``: reuse the models of an earlier run (its JSON, key ``identification``) instead of identifying
 again, so a sweep of NMPC settings costs only the closed-loop episodes. ``--closed-loop-iterations N``: identify the
 RPEM by N iterations of closed-loop identification (:func:`control.loop.closed_loop_identification`) and keep every
 iteration as a model ``rpem-iter<i>`` (``--models rpem-iter0 ... rpem``: the calibration KPIs per iteration).
+``--hw-fit``: options of :func:`ident.for_control.fit_hw_for_control` (the Hammerstein-Wiener model structure).
 
 The models are identified as in the loop (:func:`control.loop.identify_for_control`); each configuration (a JSON
 dict of :func:`control.blackbox.black_box_nmpc` overrides; ``{}`` is the current default) runs in closed loop on
 the seeded random cycles ``--seeds`` (``--duration`` seconds each, sensor-noise seed 0), beside the look-up table.
 The rule of :mod:`experiments.calibrate_controllers` picks per model: the lowest mean tailpipe NOx among the
-configurations whose mean NH3 slip stays below ``--slip-target`` on every calibration cycle. The chosen values are
+configurations whose mean NH3 slip stays below ``--slip-target`` on every calibration cycle. ``--hw-fit`` passes
+options to :func:`ident.for_control.fit_hw_for_control` (calibrating the model structure), ``--identified`` reuses
+the models of an earlier ``--json`` instead of identifying again. The chosen values are
 the defaults of :data:`control.blackbox.NMPC_SETTINGS`.
 """
 from __future__ import annotations
@@ -26,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from control.loop import identify_for_control
+from control.loop import BLACK_BOX, identify_for_control
 from experiments._runs import run_folder, write_json
 from experiments.sweep import add_arguments, from_args, run_sweep
 
@@ -52,6 +55,7 @@ def episode(model: str, config: dict[str, Any], seed: int, duration: float, blac
     stats = policy.stats() if hasattr(policy, "stats") else {}
     return {"model": model, "config": config, "seed": seed, "nox": res.kpis["tailpipe_nox_g_per_kwh"],
             "slip": res.kpis["mean_nh3_slip_ppm"], "peak": res.kpis["peak_nh3_slip_ppm"],
+            "adblue_g": res.kpis.get("adblue_g", float("nan")),
             "failures": stats.get("solver_failures", 0.0), "wall_s": time.perf_counter() - t0}
 
 
@@ -68,6 +72,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--closed-loop-iterations", type=int, default=None,
                     help="iterations of closed-loop identification of the RPEM (models rpem-iter<i> kept)")
     ap.add_argument("--closed-loop-nmpc", default="{}", help="JSON overrides of the closed-loop experiments' NMPC")
+    ap.add_argument("--hw-fit", default="{}", help="JSON dict of ident.for_control.fit_hw_for_control options")
     add_arguments(ap)
     args = ap.parse_args(argv)
     if args.workers is None:
@@ -78,18 +83,28 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         configs = [json.loads(c) for c in args.configs]
     except json.JSONDecodeError as exc:
         ap.error(f"--configs: not JSON ({exc})")
+    try:
+        hw_fit = json.loads(args.hw_fit)
+    except json.JSONDecodeError as exc:
+        ap.error(f"--hw-fit: not JSON ({exc})")
     out = run_folder("calibrate_black_box", json_path=args.json)
-    black_box = (json.loads(args.identified.read_text())["identification"] if args.identified is not None
-                 else identify_for_control(out) if args.closed_loop_iterations is None
-                 else identify_for_control(out, closed_loop_iterations=args.closed_loop_iterations,
-                                           keep_iterations=True, closed_loop_nmpc=json.loads(args.closed_loop_nmpc)))
+    if args.identified is not None:
+        black_box = json.loads(args.identified.read_text())["identification"]
+    elif args.closed_loop_iterations is None:
+        black_box = identify_for_control(out, kinds=tuple(m for m in args.models if m in BLACK_BOX) or BLACK_BOX,
+                                         hw_fit=hw_fit)
+    else:
+        black_box = identify_for_control(out, closed_loop_iterations=args.closed_loop_iterations,
+                                         keep_iterations=True, closed_loop_nmpc=json.loads(args.closed_loop_nmpc),
+                                         hw_fit=hw_fit)
     tasks = [{"model": "lookup_table", "config": {}, "seed": s, "duration": args.duration, "black_box": black_box}
              for s in args.seeds]
     tasks += [{"model": m, "config": c, "seed": s, "duration": args.duration, "black_box": black_box}
               for m in args.models for c in configs for s in args.seeds]
     rows = run_sweep(episode, tasks, description="calibration", **from_args(args))
     lut = {r["seed"]: r["nox"] for r in rows if r["model"] == "lookup_table"}
-    print("lookup_table per seed:", {s: round(v, 3) for s, v in lut.items()}, flush=True)
+    print("lookup table per seed (seed, NOx, slip, AdBlue g):",
+          [(r["seed"], r["nox"], r["slip"], r["adblue_g"]) for r in rows if r["model"] == "lookup_table"])
     table, chosen = [], {}
     for m in args.models:
         best = None
@@ -98,14 +113,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             nox, worst = float(np.mean([r["nox"] for r in rs])), max(r["slip"] for r in rs)
             table.append({"model": m, "config": c, "mean_nox_g_per_kwh": nox, "worst_mean_slip_ppm": worst,
                           "lut_mean_nox_g_per_kwh": float(np.mean([lut[r["seed"]] for r in rs])),
-                          "per_seed": [(r["seed"], r["nox"], r["slip"], r["failures"]) for r in rs]})
+                          "per_seed": [(r["seed"], r["nox"], r["slip"], r["failures"], r["adblue_g"]) for r in rs]})
             print(f"{m} {json.dumps(c)}: NOx {nox:.3f} g/kWh (LUT {table[-1]['lut_mean_nox_g_per_kwh']:.3f}), "
                   f"worst mean slip {worst:.2f} ppm, per seed {table[-1]['per_seed']}", flush=True)
             if worst <= args.slip_target and (best is None or nox < best[0]):
                 best = (nox, c)
         chosen[m] = None if best is None else best[1]
-    doc = {"seeds": args.seeds, "duration_s": args.duration, "slip_target_ppm": args.slip_target, "table": table,
-           "chosen": chosen, "identification": black_box}
+    doc = {"seeds": args.seeds, "duration_s": args.duration, "hw_fit": hw_fit, "slip_target_ppm": args.slip_target,
+           "table": table, "chosen": chosen, "identification": black_box}
     print("chosen:", json.dumps(chosen))
     write_json(out / "calibrate_black_box.json", doc)
     if args.json is not None:

@@ -93,14 +93,15 @@ def identification_records(seeds: Sequence[int] = IDENT_SEEDS, designs: Sequence
     return out
 
 
-def control_arrays(records: Sequence[Any], features: Sequence[str] = CONTROL_FEATURES
-                   ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per record (features (n, m), outputs (n, 2): log NOx slip ratio, log NH3 ppm), unscaled."""
+def control_arrays(records: Sequence[Any], features: Sequence[str] = CONTROL_FEATURES, nox_kind: str = NOX_KIND,
+                   nh3_kind: str = NH3_KIND) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per record (features (n, m), outputs (n, 2): NOx and NH3 in the ``nox_kind`` / ``nh3_kind`` representation,
+    default log NOx slip ratio and log NH3 ppm), unscaled."""
     from ident.control_relevant import FeatureMap, nh3_output, nox_output
 
     fm = FeatureMap(tuple(features))
-    return [(fm.from_record(r.u), np.column_stack([nox_output(NOX_KIND, r.y[:, 0], r.u[:, 0]),
-                                                   nh3_output(NH3_KIND, r.y[:, 1])])) for r in records]
+    return [(fm.from_record(r.u), np.column_stack([nox_output(nox_kind, r.y[:, 0], r.u[:, 0]),
+                                                   nh3_output(nh3_kind, r.y[:, 1])])) for r in records]
 
 
 def rpem_storage_terms(k: int) -> list[str]:
@@ -217,27 +218,64 @@ def _rpem_info(terms: list[list[str]], zs: np.ndarray, ys: np.ndarray, multistep
             "multistep_horizon": int(multistep_horizon), "n_records": n_records}
 
 
-def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots: int = 5, max_nfev: int = 40
-                       ) -> tuple[Any, dict[str, Any]]:
-    """The Hammerstein-Wiener model for the NMPC: one two-output model (log NOx slip ratio, log NH3) on the
-    standardised :data:`CONTROL_FEATURES`, piecewise-linear input blocks (identity on the surplus, which enters
-    both signs), linear dynamics, identity output blocks (the log outputs carry the spill-over's nonlinearity), on
-    the records end to end (each record's first minute unweighted). Returns the fitted model and its description."""
+#: output blocks :func:`fit_hw_for_control` knows: ``"identity"``, ``"pwl"`` (piecewise-linear, ``n_out_knots``
+#: segments, held constant beyond its outer knots: a spill-over that levels off), ``"saturation"`` (estimated lower
+#: limit, started at the output's floor in the data: no slip, full conversion), ``"deadzone"`` (estimated dead zone)
+HW_OUTPUT_BLOCKS = ("identity", "pwl", "saturation", "deadzone")
+
+
+def _hw_output_block(kind: str, n_out_knots: int, floor: float) -> Any:
+    from ident.hammerstein_wiener.blocks import DeadZone, Identity, PiecewiseLinear, Saturation
+
+    if kind == "identity":
+        return Identity()
+    if kind == "pwl":
+        return PiecewiseLinear(n_out_knots, extrapolation="constant")
+    if kind == "saturation":
+        return Saturation(lower=floor, estimate=True)
+    if kind == "deadzone":
+        return DeadZone(-0.1, 0.1, estimate=True)
+    raise ValueError(f"output block {kind!r} unknown; known: {HW_OUTPUT_BLOCKS}")
+
+
+def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots: int = 5, max_nfev: int = 40,
+                       output_blocks: Sequence[str] = ("identity", "identity"), n_out_knots: int = 4,
+                       nox_kind: str = NOX_KIND, nh3_kind: str = NH3_KIND, surplus_block: str = "identity",
+                       features: Sequence[str] = CONTROL_FEATURES, multistep_horizon: int = 0,
+                       multistep_nfev: int = 40) -> tuple[Any, dict[str, Any]]:
+    """The Hammerstein-Wiener model for the NMPC: one two-output model (NOx in the ``nox_kind`` representation,
+    NH3 in ``nh3_kind``; default log NOx slip ratio, log NH3) on the standardised :data:`CONTROL_FEATURES`,
+    piecewise-linear input blocks (``surplus_block`` ``"identity"`` or ``"pwl"`` on the surplus, which enters both
+    signs), linear dynamics, output blocks ``output_blocks`` per output (:data:`HW_OUTPUT_BLOCKS`: identity, or a
+    static block that can express spill-over), on the records end to end (each record's first minute unweighted).
+    Returns the fitted model and its description."""
     from ident.hammerstein_wiener import HammersteinWiener
     from ident.hammerstein_wiener.blocks import Identity, PiecewiseLinear
 
-    arrs = control_arrays(records)
+    if len(output_blocks) != 2:
+        raise ValueError(f"output_blocks: one per output (2), got {list(output_blocks)}")
+    features = tuple(features)
+    arrs = control_arrays(records, features, nox_kind=nox_kind, nh3_kind=nh3_kind)
     Z = np.vstack([z for z, _ in arrs])
     zm, zsd = Z.mean(axis=0), Z.std(axis=0)
-    zm[0] = 0.0   # the surplus keeps its zero (no dose, no surplus)
+    zm[0] = 0.0   # the dose feature (first) keeps its zero (no dose, no surplus)
     Uc, Yc, W = concat_records([(z - zm) / zsd for z, _ in arrs], [y for _, y in arrs], warmup=120)
     ym, ysd = Yc.mean(axis=0), Yc.std(axis=0)
-    blocks = [Identity() if f.startswith("surplus") else PiecewiseLinear(n_knots) for f in CONTROL_FEATURES]
-    model = HammersteinWiener(input_blocks=blocks, output_block=Identity(), nb=nb, nf=nf, nk=1, max_nfev=max_nfev,
+    # a saturation starts at the output's floor in the data (no slip, full conversion), normalised
+    outs = [_hw_output_block(k, n_out_knots, float((Yc[:, j].min() - ym[j]) / ysd[j]))
+            for j, k in enumerate(output_blocks)]
+    if surplus_block not in ("identity", "pwl"):
+        raise ValueError(f"surplus_block must be 'identity' or 'pwl', got {surplus_block!r}")
+    blocks = [Identity() if f.startswith("surplus") and surplus_block == "identity" else PiecewiseLinear(n_knots)
+              for f in features]
+    model = HammersteinWiener(input_blocks=blocks, output_block=outs, nb=nb, nf=nf, nk=1, max_nfev=max_nfev,
                               initial="zero").fit(Uc, (Yc - ym) / ysd, sample_weight=W)
-    info = {"kind": "hammerstein_wiener", "features": list(CONTROL_FEATURES), "z_mean": zm.tolist(),
-            "z_scale": zsd.tolist(), "y_mean": ym.tolist(), "y_scale": ysd.tolist(), "nox_kind": NOX_KIND,
-            "nh3_kind": NH3_KIND, "nb": nb, "nf": nf, "n_records": len(records)}
+    if multistep_horizon > 0:
+        hw_multistep_refine(model, Uc, (Yc - ym) / ysd, W, int(multistep_horizon), multistep_nfev)
+    info = {"kind": "hammerstein_wiener", "features": list(features), "z_mean": zm.tolist(),
+            "z_scale": zsd.tolist(), "y_mean": ym.tolist(), "y_scale": ysd.tolist(), "nox_kind": nox_kind,
+            "nh3_kind": nh3_kind, "nb": nb, "nf": nf, "output_blocks": list(output_blocks),
+            "surplus_block": surplus_block, "multistep_horizon": int(multistep_horizon), "n_records": len(records)}
     return model, info
 
 
@@ -247,7 +285,8 @@ def k_step_fit(step: Any, info: dict[str, Any], record: Any, horizon: int) -> li
     domain); NaN where the predictions diverge."""
     from ident.metrics import fit_percent
 
-    (z, y), = control_arrays([record], info["features"])
+    (z, y), = control_arrays([record], info["features"], info.get("nox_kind", NOX_KIND),
+                             info.get("nh3_kind", NH3_KIND))
     zn = (z - np.asarray(info["z_mean"])) / np.asarray(info["z_scale"])
     nx = int(step.size1_in(0))
     f = step.mapaccum(horizon)
@@ -264,3 +303,52 @@ def k_step_fit(step: Any, info: dict[str, Any], record: Any, horizon: int) -> li
     # a prediction that leaves the float range is a diverged model: FIT NaN (reported, not raised)
     return [float(fit_percent(y[ok, j], pred[ok, j])) if np.all(np.isfinite(pred[ok, j])) else float("nan")
             for j in range(y.shape[1])]
+
+
+def hw_multistep_refine(model: Any, u: np.ndarray, y: np.ndarray, weights: np.ndarray, horizon: int,
+                        max_nfev: int = 40) -> Any:
+    """Refit a fitted :class:`HammersteinWiener` in place by the multi-step prediction error of the NMPC's
+    predictor (Shook, Mohtadi and Shah 1991): in windows of ``horizon`` samples, the model's output from its own
+    (simulated) state plus the output offset measured at the window's start, i.e. the error of the predicted
+    *change* ``(y(t0 + j) - y(t0)) - (yhat(t0 + j) - yhat(t0))``, j = 1..horizon, the offset-free NMPC's
+    additive output disturbance held over its horizon. Weighted by ``weights`` (per sample, >= 0). Same
+    parameters, bounds and Levenberg-Marquardt solver as the fit; never worse than the start on this criterion."""
+    from ident.hammerstein_wiener._structure import eta_from_poly
+    from ident.linear._lsq import levenberg_marquardt
+
+    u, y = np.asarray(u, float), np.asarray(y, float)
+    _, _, st = model._validate(u, y)
+    st.blocks = [b.copy() for b in model.input_blocks_]
+    st.outs = [b.copy() for b in model.output_blocks_]
+    st.p0_in = [np.asarray(p, float) for p in model.input_params_]
+    st.p0_out = [np.asarray(p, float) for p in model.output_params_]
+    ny, nu = model.n_outputs_, model.n_inputs_
+    st.gain = np.full((ny, nu), np.nan)
+    bs = [[model.b_[j, i, int(st.nk[j, i]):int(st.nk[j, i] + st.nb[j, i])] for i in range(nu)] for j in range(ny)]
+    etas = [[eta_from_poly(model.f_[j, i, :int(st.nf[j, i]) + 1]) for i in range(nu)] for j in range(ny)]
+    th0 = st.pack(st.p0_in, bs, etas, st.p0_out)
+    n = len(y)
+    starts = np.arange(0, n - horizon, horizon)
+    t0 = np.repeat(starts, horizon)
+    tj = t0 + np.tile(np.arange(1, horizon + 1), len(starts))
+    sw = np.sqrt(np.asarray(weights, float)[tj] * np.asarray(weights, float)[t0])
+    lo, hi = st.bounds()
+    th0 = np.clip(th0, lo, hi)
+
+    def resid(th: np.ndarray) -> np.ndarray:
+        e = y - st.simulate(th, u, False)[0]
+        return (sw[:, None] * (e[tj] - e[t0])).T.ravel()
+
+    def jac(th: np.ndarray) -> np.ndarray:
+        J = st.simulate(th, u, True)[1].reshape(ny, n, -1)
+        return np.concatenate([-sw[:, None] * (J[j][tj] - J[j][t0]) for j in range(ny)])
+
+    st.bind(u)
+    r0 = float(np.sum(resid(th0) ** 2))
+    bounded = bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
+    res = levenberg_marquardt(resid, jac, th0, bounds=(lo, hi) if bounded else None, max_nfev=max_nfev)
+    r1 = float(np.sum(resid(res.x) ** 2))
+    st.bind(None)
+    if np.isfinite(r1) and r1 < r0:
+        model._store(st, res.x)
+    return model

@@ -35,3 +35,30 @@ def test_identified_reuses_saved_models_without_identifying(tmp_path, monkeypatc
                                     str(tmp_path / "prev.json"), "--configs", '{"anr_band_hi": null}',
                                     "--json", str(tmp_path / "out.json")])
     assert doc["table"][0]["config"] == {"anr_band_hi": None} and len(doc["table"][0]["per_seed"]) == 1
+
+
+def test_refuses_bad_hw_fit_and_reuses_an_earlier_identification(capsys: pytest.CaptureFixture[str],
+                                                                  tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import json
+
+    with pytest.raises(SystemExit):
+        calibrate_black_box.main(["--hw-fit", "{not json"])
+    assert "--hw-fit" in capsys.readouterr().err
+
+    earlier = tmp_path / "earlier.json"
+    earlier.write_text(json.dumps({"identification": {"models": {"hammerstein_wiener": {"path": "x"}}}}))
+
+    def no_identification(*a: object, **k: object) -> None:
+        raise AssertionError("identified again")
+
+    def sweep(fn: object, tasks: list, **kw: object) -> list:
+        return [{"model": t["model"], "config": t["config"], "seed": t["seed"], "nox": 1.0, "slip": 0.0,
+                 "adblue_g": 1.0, "failures": 0.0} for t in tasks]
+
+    monkeypatch.chdir(tmp_path)   # the run folder goes under ./runs
+    monkeypatch.setattr(calibrate_black_box, "identify_for_control", no_identification)
+    monkeypatch.setattr(calibrate_black_box, "run_sweep", sweep)
+    doc = calibrate_black_box.main(["--models", "hammerstein_wiener", "--seeds", "5", "--identified", str(earlier),
+                                    "--json", str(tmp_path / "out.json")])
+    assert doc["identification"]["models"]["hammerstein_wiener"]["path"] == "x"
+    assert doc["chosen"] == {"hammerstein_wiener": {}}
