@@ -7,9 +7,10 @@
 Each run (control.rl.suite.train_one) trains on its group's training distribution (scr_env.tasks), validates its
 checkpoints on random cycles of that distribution and keeps the selected one (flagged if over the slip limit); with
 ``--ship`` it goes to control/policies/benchmark/<group>/<algo>_s<seed>.json, where experiments.rl_benchmark finds
-it. Default timesteps: control.rl.suite.SUITE_TIMESTEPS (PPO 150 k, SAC 60 k, TD3 60 k), sized for about 3 hours for
-all 45 runs with 2 processes on 2 cores shared with other jobs; ``--timesteps`` overrides every run's. The report
-(``--json``, and report.json in the run folder) gives every run's wall time, steps per second and selection.
+it. Default timesteps: control.rl.suite.SUITE_TIMESTEPS (PPO 500 k, SAC 200 k, TD3 200 k): the 45 runs take
+about 85 min of one core (--jobs 1, under load; SAC at 100 k took 21 min for its 15 runs, TD3 27, PPO 16);
+``--timesteps`` overrides every run's. The report (``--json``, and report.json in the run folder) gives every
+run's wall time, steps per second and selection.
 Retrain after the plant changes (the phys stream's chemistry and ageing) or the reference does (control.limit).
 """
 from __future__ import annotations

@@ -12,8 +12,12 @@ Settings [chosen, from the runs behind the shipped ppo/sac, control/policies/REA
 cycle]: the observation pipeline without the tailpipe sensor and the ANR action (:data:`SUITE_PIPELINE`), training
 reward weights nox 40 / nh3 150 / AdBlue 1 (:data:`SUITE_REWARD_WEIGHTS`), PPO's conservative settings (lr 1e-4,
 gamma 0.99, 5 epochs, initial log-std -2), SAC and TD3 as :data:`control.rl.training.HYPERPARAMETERS`. Timesteps
-per run (:data:`SUITE_TIMESTEPS`) are sized so that 3 algorithms x 5 seeds x 3 groups fit in about 3 hours on 2
-shared cores with 2 processes (measured steps per second in docs/pending/rl.md).
+per run (:data:`SUITE_TIMESTEPS`, PPO 500 k, SAC 200 k, TD3 200 k): sized on a probe run on the fresh group's
+training distribution and its validation cycles, seed 0 (2026-11-25): PPO 1 M steps 0.433 g/kWh in 99 s, TD3 300 k
+0.182 g/kWh (6.6 ppm) in 129 s, SAC 200 k slipped 22 ppm; measured speed on a quiet core (``train_baselines
+--speed 20000``) PPO 9,700, SAC 2,300, TD3 4,800 steps/s. The shipped suite (control/policies/benchmark) ran
+PPO and TD3 at these sizes and SAC at 100 k (time): 16 / 27 / 21 min of one core for the 15 runs of each
+algorithm under load.
 """
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ BENCHMARK_POLICY_DIR = Path(__file__).resolve().parent.parent / "policies" / "be
 SUITE_ALGOS = ("ppo", "sac", "td3")
 SUITE_SEEDS = (0, 1, 2, 3, 4)
 #: environment steps per run (all plants of the vector env together)
-SUITE_TIMESTEPS = {"ppo": 150_000, "sac": 60_000, "td3": 60_000}
+SUITE_TIMESTEPS = {"ppo": 500_000, "sac": 200_000, "td3": 200_000}
 N_CHECKPOINTS = 4
 SUITE_VALIDATION_SEEDS = (1001, 1002)
 SUITE_PIPELINE = PipelineConfig(action="anr")
