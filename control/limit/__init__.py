@@ -43,6 +43,7 @@ from control.limit.problem import CycleOptimum, pareto_front
 from control.limit.stored import (
     StaleLimitWarning,
     controllers_against_limit,
+    fingerprint_changes,
     pareto_figure,
     plant_entry_name,
     plant_fingerprint,
@@ -63,6 +64,7 @@ __all__ = [
     "StaleLimitWarning",
     "controllers_against_limit",
     "cycle_segment",
+    "fingerprint_changes",
     "gap_to_limit",
     "make_env",
     "pareto_figure",

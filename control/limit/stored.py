@@ -22,26 +22,97 @@ from scr_env.cycles import ExhaustTrace
 
 #: the stored limit (package data, written by ``python -m experiments.limit --store``)
 STORED_LIMIT_RESOURCE = "data/limit.json"
-_FINGERPRINT_VERSION = 1
+#: version 2: the numeric parts are signatures compared with a tolerance (version 1 hashed floats rounded to 12
+#: significant digits, which flipped when a value sat on a rounding tie and a numpy release changed its last bit)
+_FINGERPRINT_VERSION = 2
+#: relative tolerance of a numeric signature (of the sum of the absolute terms): far above rounding (1e-16), far
+#: below any change of a plant that would move a limit
+SIGNATURE_RTOL = 1e-9
+_SIGNATURE_PROJECTIONS = 6
 
 
 # ------------------------------------------------------------------------------------------ fingerprint of a plant
-def _digest(obj: Any) -> str:
-    """sha256 (first 16 hex digits) of a JSON rendering, floats at 12 significant digits (immune to the last bits
-    a different CPU or numpy may change)."""
-    def norm(v: Any) -> Any:
-        if isinstance(v, Mapping):
-            return {str(k): norm(x) for k, x in sorted(v.items())}
-        if isinstance(v, np.ndarray):
-            return [norm(x) for x in v.ravel().tolist()] + [list(v.shape)]
-        if isinstance(v, (list, tuple)):
-            return [norm(x) for x in v]
-        if isinstance(v, (bool, np.bool_)) or v is None or isinstance(v, str):
-            return v if not isinstance(v, np.bool_) else bool(v)
-        if isinstance(v, (int, float, np.integer, np.floating)):
-            return format(float(v), ".12g")
-        return repr(v)
-    return hashlib.sha256(json.dumps(norm(obj), sort_keys=True).encode()).hexdigest()[:16]
+#: arrays up to this many numbers are stored whole in a signature; longer ones as sums and projections per column
+_SIGNATURE_WHOLE = 64
+
+
+def _leaves(obj: Any, path: str = "") -> list[tuple[str, Any]]:
+    """(path, leaf) of a nested mapping/list in a fixed order; arrays and scalars are leaves."""
+    if isinstance(obj, Mapping):
+        return [leaf for k in sorted(obj, key=str) for leaf in _leaves(obj[k], f"{path}/{k}")]
+    if isinstance(obj, (list, tuple)) and not all(isinstance(x, (int, float, np.integer, np.floating)) for x in obj):
+        return [leaf for i, x in enumerate(obj) for leaf in _leaves(x, f"{path}[{i}]")]
+    return [(path, obj)]
+
+
+def _leaf_signature(leaf: Any) -> Any:
+    """A leaf as JSON: non-numeric as its repr; numbers whole up to :data:`_SIGNATURE_WHOLE` of them, else per
+    column (the last axis of a 2-D array) the sum of absolute values and a few fixed pseudo-random projections."""
+    if isinstance(leaf, (str, bool, np.bool_)) or leaf is None:
+        return repr(leaf)
+    try:
+        x = np.asarray(leaf, dtype=float)
+    except (TypeError, ValueError):
+        return repr(leaf)
+    if x.size <= _SIGNATURE_WHOLE:
+        return {"shape": list(x.shape), "values": x.ravel().tolist()}
+    cols = x.reshape(x.shape[0], -1) if x.ndim >= 2 else x.reshape(-1, 1)
+    w = np.random.default_rng(20261127).standard_normal((_SIGNATURE_PROJECTIONS, cols.shape[0]))
+    return {"shape": list(x.shape), "abs_sum": np.abs(cols).sum(axis=0).tolist(), "projections": (w @ cols).tolist()}
+
+
+def _signature(obj: Any) -> dict[str, Any]:
+    """A numeric signature of a nested structure (:func:`_leaf_signature` of every leaf, by path). Two signatures
+    are the same plant when their paths, shapes and non-numeric leaves agree and their numbers agree within
+    :data:`SIGNATURE_RTOL` (:func:`_same`): immune to the last bits a CPU or a numpy release may change, sensitive to
+    any real change of a value."""
+    return {path: _leaf_signature(leaf) for path, leaf in _leaves(obj)}
+
+
+def _close(a: Any, b: Any, scale: Any) -> bool:
+    """Whether two number lists agree within :data:`SIGNATURE_RTOL` of ``scale`` (elementwise or per column)."""
+    try:
+        va, vb = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        sc = np.asarray(scale, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    if va.shape != vb.shape or not (np.all(np.isfinite(va)) and np.all(np.isfinite(vb))):
+        return False
+    return bool(np.all(np.abs(va - vb) <= SIGNATURE_RTOL * sc + 1e-300))
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Whether two fingerprint parts describe the same thing: equal strings, or numeric signatures
+    (:func:`_signature`) that agree within :data:`SIGNATURE_RTOL`."""
+    if isinstance(a, str) or isinstance(b, str) or not isinstance(a, Mapping) or not isinstance(b, Mapping):
+        return a == b
+    if sorted(a) != sorted(b):
+        return False
+    for k, la in a.items():
+        lb = b[k]
+        if isinstance(la, str) or isinstance(lb, str) or not isinstance(la, Mapping) or not isinstance(lb, Mapping):
+            if la != lb:
+                return False
+            continue
+        if sorted(la) != sorted(lb) or la.get("shape") != lb.get("shape"):
+            return False
+        if "values" in la:
+            if not _close(la["values"], lb["values"], np.maximum(np.abs(la["values"]), np.abs(lb["values"]))):
+                return False
+        else:
+            scale = np.maximum(np.abs(la["abs_sum"]), np.abs(lb["abs_sum"]))
+            if not (_close(la["abs_sum"], lb["abs_sum"], scale)
+                    and _close(la["projections"], lb["projections"], scale)):
+                return False
+    return True
+
+
+def fingerprint_changes(stored: Mapping[str, Any], now: Mapping[str, Any]) -> list[str]:
+    """The parts of a plant fingerprint that differ between a stored one and ``now`` (both
+    :func:`plant_fingerprint`); a stored fingerprint of another version differs in every part."""
+    if not isinstance(stored, Mapping) or stored.get("version") != now.get("version"):
+        return sorted(k for k in now if k != "version")
+    return sorted(k for k in now if k != "version" and not _same(stored.get(k), now[k]))
 
 
 def _source_digest(module: Any) -> str:
@@ -66,14 +137,14 @@ def _source_digest(module: Any) -> str:
 
 
 def plant_fingerprint(cycle: str | os.PathLike | ExhaustTrace = "whtc",
-                      env_kwargs: Mapping[str, Any] | None = None, seed: int = 0) -> dict[str, str]:
-    """What a limit was solved for, as short hashes: ``catalyst`` (the packed parameters of the episode, by name),
-    ``dosing`` (injector limit, urea decomposition), ``cycle`` (the drive rows and engine power of every step, dt),
-    ``initial_state`` (coverages and temperatures after reset), ``chemistry`` (the code of
-    :mod:`scr_env.physics.cell`, without comments and docstrings) and ``plant``, a hash of them all. Changes of the
-    kernel's integrator, thermal step or KPI code are not in it: ``tests/control/test_limit.py`` replays the
-    stored doses through the current environment for those. ``seed``: the reset seed of the episode (as
-    :class:`~control.limit.CycleOptimum`'s)."""
+                      env_kwargs: Mapping[str, Any] | None = None, seed: int = 0) -> dict[str, Any]:
+    """What a limit was solved for: ``catalyst`` (the packed parameters of the episode, by name), ``dosing``
+    (injector limit, urea decomposition), ``cycle`` (the drive rows and engine power of every step, dt) and
+    ``initial_state`` (coverages and temperatures after reset) as numeric signatures compared with a tolerance
+    (:func:`fingerprint_changes`), ``chemistry`` (a hash of the code of :mod:`scr_env.physics.cell`, without
+    comments and docstrings) and ``version``. Changes of the kernel's integrator, thermal step or KPI code are not
+    in it: ``tests/control/test_limit.py`` replays the stored doses through the current environment for those.
+    ``seed``: the reset seed of the episode (as :class:`~control.limit.CycleOptimum`'s)."""
     from dataclasses import asdict
 
     from scr_env.envs.config import O2_FRACTION
@@ -83,16 +154,15 @@ def plant_fingerprint(cycle: str | os.PathLike | ExhaustTrace = "whtc",
     env = make_env(cycle, env_kwargs)
     env.reset(seed=_count("seed", seed, 0))
     n = env.trace.n_steps
-    parts = {
-        "catalyst": _digest(dict(zip(PACKED_FIELDS, env.catalyst_params_array.tolist(), strict=True))),
-        "dosing": _digest(asdict(env.config.dosing)),
-        "cycle": _digest({"drive": env.disturbance_preview(n), "engine_power_kw": env.trace.engine_power_kw,
-                          "dt": env.dt, "o2_fraction": O2_FRACTION}),
-        "initial_state": _digest({k: env.state[k] for k in ("nh3_coverage", "temperature_k")}),
+    return {
+        "catalyst": _signature(dict(zip(PACKED_FIELDS, env.catalyst_params_array.tolist(), strict=True))),
+        "dosing": _signature(asdict(env.config.dosing)),
+        "cycle": _signature({"drive": env.disturbance_preview(n), "engine_power_kw": env.trace.engine_power_kw,
+                             "dt": env.dt, "o2_fraction": O2_FRACTION}),
+        "initial_state": _signature({k: env.state[k] for k in ("nh3_coverage", "temperature_k")}),
         "chemistry": _source_digest(cell),
+        "version": _FINGERPRINT_VERSION,
     }
-    parts["plant"] = _digest({**parts, "version": _FINGERPRINT_VERSION})
-    return parts
 
 
 # ----------------------------------------------------------------------------------------------- stored results
@@ -151,9 +221,9 @@ def _find_entry(doc: Mapping[str, Any], cycle: Any, env_kwargs: Mapping[str, Any
         raise ValueError(f"cycle must be a cycle name such as 'whtc', got {cycle!r}")  # noqa: TRY004
     name = cycle.strip().lower()
     if env_kwargs or seed:
-        want = plant_fingerprint(name, env_kwargs, seed)["plant"]
+        want = plant_fingerprint(name, env_kwargs, seed)
         found = [(n, e) for n, e in doc["cycles"].items() if isinstance(e, dict)
-                 and (e.get("fingerprint") or {}).get("plant") == want]
+                 and not fingerprint_changes(e.get("fingerprint") or {}, want)]
         if not found:
             raise ValueError(f"no stored limit for the plant {plant_entry_name(name, env_kwargs, seed)} (cycle, "
                              f"env_kwargs, seed); stored in {where}: {', '.join(sorted(doc['cycles']))}. Solve it: "
@@ -197,10 +267,10 @@ def stored_limit(cycle: str = "whtc", budget_ppm: float = REFERENCE_BUDGET_PPM, 
         if cache_key not in _FINGERPRINT_CACHE:
             _FINGERPRINT_CACHE[cache_key] = plant_fingerprint(*plant)
         now = _FINGERPRINT_CACHE[cache_key]
-        changed = sorted(k for k in now if k != "plant" and stored.get(k) != now[k])
-        if changed or stored.get("plant") != now["plant"]:
+        changed = fingerprint_changes(stored, now)
+        if changed:
             warnings.warn(f"the stored limit of {name} was solved for another plant (changed: "
-                          f"{', '.join(changed) or 'plant'}); re-solve with `python -m experiments.limit --store`",
+                          f"{', '.join(changed)}); re-solve with `python -m experiments.limit --store`",
                           StaleLimitWarning, stacklevel=2)
     try:
         return LimitResult.from_dict(name, entry["budgets"][key])

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from control import limit as L
-from control.limit.stored import _source_digest
+from control.limit.stored import _signature, _source_digest
 
 #: a short, warm piece of the hot WHTC (2 minutes at 0.5 s, 300-390 C at the SCR inlet)
 SEGMENT = (2800, 240)
@@ -175,7 +175,7 @@ def test_stored_limit_matches_the_current_plant():
         cycle, kw, seed = entry.get("cycle", name), entry.get("env_kwargs") or {}, entry.get("seed", 0)
         stored = entry["fingerprint"]
         now = L.plant_fingerprint(cycle, kw, seed)
-        changed = [k for k in now if stored.get(k) != now[k]]
+        changed = L.fingerprint_changes(stored, now)
         assert not changed, (f"the stored limit of {name} was solved for another plant ({', '.join(changed)} "
                              "changed): re-solve with `python -m experiments.limit --store`")
         for key in entry["budgets"]:
@@ -312,3 +312,32 @@ def test_task_limit_metrics_are_the_stored_limit_of_each_episodes_plant():
         assert row["kpis"]["tailpipe_nox_g_per_kwh"] == float(want)
         assert row["kpis"]["mean_nh3_slip_ppm"] <= 10.0 * 1.01
         assert row["kpis"]["command_total_variation_g_s_per_h"] >= 0.0
+
+
+def test_fingerprint_ignores_last_bits_and_sees_real_changes():
+    """A numeric signature is immune to a last-bit change of any value (a numpy release or CPU; version 1's
+    rounded-float hash flipped on values such as 0.4960853952865, a rounding tie at 12 digits) and sees a change
+    of one value in a long series, of a small parameter beside large ones, and of the series' length."""
+    rng = np.random.default_rng(0)
+    drive = rng.uniform(0.1, 900.0, (3600, 5))
+    drive[17, 2] = 0.4960853952865
+    params = {"a_ox_no": 1.37e10, "o2_order_ox": 0.60314, "n_cells": 5.0}
+    base = {"cycle": _signature({"drive": drive, "dt": 0.5}), "catalyst": _signature(params),
+            "chemistry": "abc", "version": 2}
+
+    def changes(drive2, params2, chem="abc"):
+        now = {"cycle": _signature({"drive": drive2, "dt": 0.5}), "catalyst": _signature(params2),
+               "chemistry": chem, "version": 2}
+        return L.fingerprint_changes(json.loads(json.dumps(base)), now)  # stored as JSON, as in the package
+
+    ulp = drive.copy()
+    ulp[17, 2] = np.nextafter(ulp[17, 2], 1.0)
+    ulp[::7] = np.nextafter(ulp[::7], np.inf)
+    assert changes(ulp, {**params, "a_ox_no": np.nextafter(1.37e10, 0.0)}) == []
+    one = drive.copy()
+    one[1234, 3] *= 1 + 1e-5
+    assert changes(one, params) == ["cycle"]
+    assert changes(drive, {**params, "o2_order_ox": 0.60315}) == ["catalyst"]
+    assert changes(drive[:-1], params) == ["cycle"]
+    assert changes(drive, params, chem="abd") == ["chemistry"]
+    assert L.fingerprint_changes({**base, "version": 1}, base) == ["catalyst", "chemistry", "cycle"]
