@@ -24,7 +24,8 @@ import numpy as np
 from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM
 
 __all__ = ["BLACK_BOX", "ablation_controllers", "black_box_excitation", "closed_loop_identification", "gap_closed",
-           "gap_closed_over_seeds", "held_out", "identify_for_control", "load_for_control", "loop_controller"]
+           "gap_closed_over_seeds", "gap_to_limit_over_seeds",
+           "held_out", "identify_for_control", "load_for_control", "loop_controller"]
 
 #: the black-box model kinds of the loop
 BLACK_BOX = ("rpem", "hammerstein_wiener")
@@ -244,6 +245,33 @@ def gap_closed_over_seeds(kpis_per_seed: dict[str, dict[str, list[dict[str, floa
             else:
                 out.setdefault(m, {})[cycle] = float(np.mean(per[m]))
     return out, excluded
+
+
+def gap_to_limit_over_seeds(kpis_per_seed: dict[str, dict[str, list[dict[str, float]]]],
+                            limit: Any = None) -> dict[str, dict[str, Any]]:
+    """Issue 19 part 3: per cycle, the stored clairvoyant limit at 10 ppm (``limit_tailpipe_nox_g_per_kwh``, read by
+    :func:`control.limit.limit_nox`, never re-solved; ``limit(cycle)`` replaces that reader) and every
+    controller's ``gap_to_limit``: the seed mean of the fraction of the look-up-table-to-limit gap in tailpipe NOx
+    it closes (0: the look-up table, 1: the limit), with ``within_slip_limit`` (every seed's mean NH3 slip within
+    :data:`SLIP_LIMIT_PPM`). Cycles without a stored limit (the quick segment) are left out."""
+    from control.limit import gap_to_limit, limit_nox
+
+    read = limit_nox if limit is None else limit
+    out: dict[str, dict[str, Any]] = {}
+    for cycle, ctrl in kpis_per_seed.items():
+        lim = read(cycle)
+        luts = [r["tailpipe_nox_g_per_kwh"] for r in ctrl.get("lookup_table", [])]
+        if lim is None or not luts:
+            continue
+        rows: dict[str, Any] = {}
+        for name, per in ctrl.items():
+            n = min(len(per), len(luts))
+            vals = [gap_to_limit(luts[i], per[i]["tailpipe_nox_g_per_kwh"], lim) for i in range(n)]
+            slip = max((per[i].get("mean_nh3_slip_ppm", float("inf")) for i in range(n)), default=float("inf"))
+            rows[name] = {"gap_to_limit": float(np.mean(vals)) if vals else float("nan"),
+                          "within_slip_limit": bool(slip <= SLIP_LIMIT_PPM)}
+        out[cycle] = {"limit_tailpipe_nox_g_per_kwh": float(lim), "controllers": rows}
+    return out
 
 
 def gap_closed(kpis: dict[str, dict[str, dict[str, float]]]) -> tuple[dict[str, dict[str, float]], list[dict]]:

@@ -60,6 +60,21 @@ def loop_report(doc: dict[str, Any], figures: Sequence[Path]) -> str:
     for e in doc.get("gap_closed_excluded", []):
         lines.append(f"- not counted: {e['model']} on {e['cycle']} (raw fraction {e['raw_fraction']:.2f}): "
                      f"{e['reason']}")
+    to_limit = doc.get("gap_to_limit") or {}
+    if to_limit:
+        lines += ["", ("Fraction of the look-up-table-to-limit gap closed (the stored clairvoyant optimum at 10 ppm "
+                       "mean slip, `control.limit`; 1 = the physical limit of the task), seed means; * = a seed "
+                       f"above {SLIP_LIMIT_PPM:.0f} ppm mean slip:"), "",
+                  "| controller | " + " | ".join(f"{c} (limit {v['limit_tailpipe_nox_g_per_kwh']:.3f} g/kWh)"
+                                                 for c, v in to_limit.items()) + " |",
+                  "|---|" + "---|" * len(to_limit)]
+        names = list(dict.fromkeys(n for v in to_limit.values() for n in v["controllers"]))
+        for n in names:
+            cells = []
+            for v in to_limit.values():
+                r = v["controllers"].get(n)
+                cells.append("-" if r is None else f"{r['gap_to_limit']:.2f}" + ("" if r["within_slip_limit"] else "*"))
+            lines.append(f"| {n} | " + " | ".join(cells) + " |")
     if doc.get("errors"):
         lines += ["", "Controllers that could not run: " + "; ".join(doc["errors"])]
     if doc.get("skipped"):

@@ -13,6 +13,8 @@
    seed of ``--seeds``, against the look-up table, the PI baseline, the oracle and the shipped RL policies.
    ``gap_closed[model][cycle]``: the seed mean of the fraction of the look-up-table-to-oracle gap in tailpipe NOx
    [g/kWh] that the NMPC on that model closes (counted only within the 10 ppm mean-slip limit in every seed);
+   ``gap_to_limit[cycle]``: the stored clairvoyant limit at 10 ppm (never re-solved) and every controller's seed-mean
+   fraction of the look-up-table-to-limit gap (:func:`control.loop.gap_to_limit_over_seeds`);
    ``kpis_per_seed[cycle][controller]``: the per-seed KPI dicts; ``kpis``: their means. ``--ablation`` adds the
    NMPCs with one ingredient removed in turn (:func:`control.loop.ablation_controllers`).
 
@@ -33,6 +35,7 @@ from control.loop import (
     QUICK_SEGMENT_S,
     ablation_controllers,
     gap_closed_over_seeds,
+    gap_to_limit_over_seeds,
     held_out,
     identify_for_control,
 )
@@ -95,10 +98,12 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
     kpis = {c: {n: {k: float(np.mean([row[k] for row in rows if k in row])) for k in rows[0]}
                 for n, rows in ctrl.items()} for c, ctrl in per_seed.items()}
     gaps, excluded = gap_closed_over_seeds(per_seed)
+    to_limit = gap_to_limit_over_seeds(per_seed)
     doc: dict[str, Any] = {"quick": quick, "seeds": list(seeds), "ablation": ablation, "oracle": ORACLE,
                            "identification": ident, "kpis": kpis, "kpis_per_seed": per_seed, "gap_closed": gaps,
-                           "gap_closed_excluded": excluded, "errors": errors, "skipped": rl_note or None,
-                           "run_folder": str(out), "wall_time_s": time.perf_counter() - start}
+                           "gap_closed_excluded": excluded, "gap_to_limit": to_limit, "errors": errors,
+                           "skipped": rl_note or None, "run_folder": str(out),
+                           "wall_time_s": time.perf_counter() - start}
     figures = []
     for cycle in sorted({r["cycle"] for r in results if "row" in r}):
         runs = [(r["name"], r["row"], r["trajectory"]) for r in results

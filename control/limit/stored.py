@@ -279,6 +279,24 @@ def stored_limit(cycle: str = "whtc", budget_ppm: float = REFERENCE_BUDGET_PPM, 
                          f"{exc}); re-solve with `python -m experiments.limit --store`") from None
 
 
+def limit_nox(cycle: str, budget_ppm: float = REFERENCE_BUDGET_PPM, path: str | os.PathLike | None = None
+              ) -> float | None:
+    """The stored clairvoyant limit's tailpipe NOx [g/kWh] on ``cycle`` at ``budget_ppm``: the replayed optimum of
+    :func:`stored_limit` (never re-solved), for the benchmarks' ``gap_to_limit``. None when nothing is stored for
+    that cycle and budget (e.g. a 600 s quick segment) or when it was solved for another plant
+    (:class:`StaleLimitWarning`, then not raised): a stale limit is never scored against."""
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rec = stored_limit(cycle, budget_ppm, path=path)
+    except (FileNotFoundError, ValueError):
+        return None
+    if any(issubclass(w.category, StaleLimitWarning) for w in caught):
+        return None
+    nox = float(rec.replay_tailpipe_nox_g_per_kwh)
+    return nox if np.isfinite(nox) else None
+
+
 def write_limit_document(doc: Mapping[str, Any], path: str | os.PathLike) -> Path:
     """Write a limit document as JSON, atomically (:func:`scr_env.fileio.write_json`)."""
     from scr_env.fileio import write_json

@@ -7,7 +7,14 @@ import pytest
 
 from control.blackbox import INGREDIENTS, BlackBoxMPC, black_box_nmpc
 from control.evaluation import cycle_segment, evaluate
-from control.loop import SLIP_LIMIT_PPM, ablation_controllers, gap_closed_over_seeds, load_for_control, loop_controller
+from control.loop import (
+    SLIP_LIMIT_PPM,
+    ablation_controllers,
+    gap_closed_over_seeds,
+    gap_to_limit_over_seeds,
+    load_for_control,
+    loop_controller,
+)
 from ident.for_control import (
     CONTROL_FEATURES,
     fit_hw_for_control,
@@ -93,6 +100,27 @@ def test_gap_closed_over_seeds_is_the_seed_mean_and_needs_every_seed_within_the_
     assert gaps["rpem"]["whtc"] == pytest.approx(0.5)          # mean of 0.5 and 0.5
     assert "hammerstein_wiener" not in gaps
     assert excluded[0]["model"] == "hammerstein_wiener" and "1 of 2 seeds" in excluded[0]["reason"]
+
+
+def test_gap_to_limit_over_seeds_reads_the_stored_limit_and_flags_slip() -> None:
+    """Issue 19 part 3: every controller's seed-mean fraction of the look-up-table-to-limit gap, against the stored
+    limit (the real one on the WHTC: never re-solved), slip beyond the limit flagged, cycles without a limit left
+    out."""
+    from control.limit import limit_nox
+
+    per_seed = {"whtc": {"lookup_table": [_row(1.0, 1.0), _row(0.8, 1.0)],
+                         "mpc_rpem": [_row(0.55, 2.0), _row(0.4, 3.0)],
+                         "pi": [_row(0.9, SLIP_LIMIT_PPM + 1), _row(0.9, 1.0)]},
+                "whtc_0-600s": {"lookup_table": [_row(1.0, 1.0)], "mpc_rpem": [_row(0.5, 1.0)]}}
+    out = gap_to_limit_over_seeds(per_seed, limit=lambda c: 0.1 if c == "whtc" else None)
+    assert list(out) == ["whtc"] and out["whtc"]["limit_tailpipe_nox_g_per_kwh"] == 0.1
+    r = out["whtc"]["controllers"]
+    assert r["mpc_rpem"]["gap_to_limit"] == pytest.approx(np.mean([0.45 / 0.9, 0.4 / 0.7]))
+    assert r["lookup_table"]["gap_to_limit"] == 0.0 and r["mpc_rpem"]["within_slip_limit"]
+    assert not r["pi"]["within_slip_limit"]
+    real = gap_to_limit_over_seeds({"whtc": per_seed["whtc"]})
+    assert real["whtc"]["limit_tailpipe_nox_g_per_kwh"] == pytest.approx(limit_nox("whtc"))
+    assert 0.0 < limit_nox("whtc") < 0.2 and limit_nox("whtc_0-600s") is None
 
 
 def test_slip_cap_doses_nothing_while_the_nh3_sensor_reads_above_the_guard(models: dict) -> None:
