@@ -34,7 +34,7 @@ import numpy as np
 
 from control.mpc import N_DISTURBANCE, MPCWeights, NonlinearMPC, solver_defaults
 from control.protocol import rate_to_action
-from ident.control_relevant import FeatureMap, nh3_ppm_from_output, nox_ppm_from_output
+from ident.control_relevant import FeatureMap, nh3_output, nh3_ppm_from_output, nox_output, nox_ppm_from_output
 from scr_env.constants import NH3_MOL_PER_G_ADBLUE, NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
 
 #: observation indices: upstream NOx, inlet T, flow, tailpipe NOx sensor, previous action, NH3 sensor
@@ -76,7 +76,9 @@ class BlackBoxModel:
                  initial_state: Callable[[np.ndarray], np.ndarray] | None = None,
                  linear: tuple[np.ndarray, Callable[[Any], Any]] | None = None, model_dt: float = 0.5,
                  terminal_cost: Callable[[Any], Any] | None = None, p0_state: float | Sequence[float] = 1.0,
-                 output_smoothing: float = 1.0, nh3_kind: str = "ppm", dist_states: tuple[int, int] = (0, 1)) -> None:
+                 output_smoothing: float = 1.0, nh3_kind: str = "ppm", dist_states: tuple[int, int] = (0, 1),
+                 theta_step: ca.Function | None = None, theta0: Sequence[float] | None = None,
+                 adaptation: Any = None, adaptation_filter_s: float = 2.0) -> None:
         if disturbance not in ("output", "gain", "none", "state"):
             raise ValueError(f"disturbance must be 'output', 'gain', 'state' or 'none', got {disturbance!r}")
         self.step = step
@@ -95,18 +97,28 @@ class BlackBoxModel:
         self.initial_state_fn = initial_state
         self.nx = int(step.size1_in(0))
         self.nz = int(step.size1_in(1))
+        # online adaptation (control.online_rpem): the model's parameters as an input of theta_step, NLP parameters
+        self.theta_step = theta_step
+        self.theta_ = np.asarray(theta0 if theta0 is not None else [], float).ravel().copy()
+        if (theta_step is None) != (theta0 is None) or (adaptation is not None and theta_step is None):
+            raise ValueError("theta_step and theta0 go together, and adaptation needs them")
+        if theta_step is not None and int(theta_step.size1_in(2)) != self.theta_.size:
+            raise ValueError(f"theta_step takes {theta_step.size1_in(2)} parameters, theta0 has {self.theta_.size}")
+        self.n_theta = int(self.theta_.size)
+        self.adaptation = adaptation
+        self.adaptation_filter_s = float(adaptation_filter_s)
         if self.nz != len(features):
             raise ValueError(f"step takes {self.nz} inputs but the feature map has {len(features)}")
         lo, hi = state_bounds or (np.full(self.nx, -50.0), np.full(self.nx, 50.0))
         self._bounds = (np.asarray(lo, float), np.asarray(hi, float))
-        self.n_stage_params = 2     # (d_nox, d_nh3), held over the horizon
+        self.n_stage_params = 2 + self.n_theta     # (d_nox, d_nh3), held over the horizon; the parameters
         self.n_terminal_params = 0
         self.measured_obs = (OBS_NOX_SENSOR, OBS_NH3_SENSOR) if self.nh3_sensor else (OBS_NOX_SENSOR,)
         # --- the EKF on the augmented state [x, d_nox, d_nh3], input [z, nox_in_ppm], outputs [NOx sensor, NH3]
         xa = ca.SX.sym("xa", self.nx + 2)
-        ua = ca.SX.sym("ua", self.nz + 1)
+        ua = ca.SX.sym("ua", self.nz + 1 + self.n_theta)
         x, dn, dh = xa[:self.nx], xa[self.nx], xa[self.nx + 1]
-        xn, y = step(x, ua[:self.nz])
+        xn, y = self._call(x, ua[:self.nz], ua[self.nz + 1:])
         if disturbance == "state":   # integrating disturbances on the rates of two model states
             xn = xn + self._dist_matrix() @ ca.vertcat(dn, dh) * model_dt
         nox, nh3 = self._physical(y, ua[self.nz], dn, dh, smooth=False)
@@ -126,6 +138,13 @@ class BlackBoxModel:
                                          p0=np.r_[p0x, (0.04 if disturbance == "gain" else 100.0), 25.0])
         self._u_last: np.ndarray | None = None
         self._stage_cache: dict[int, ca.Function] = {}
+
+    def _call(self, x: Any, z: Any, theta: Any) -> tuple[Any, Any]:
+        """The model step at parameters ``theta`` (ignored without ``theta_step``: the fixed model)."""
+        if self.theta_step is None:
+            return self.step(x, z)
+        out = self.theta_step(x, z, theta)
+        return out[0], out[1]
 
     def _dist_matrix(self) -> ca.DM:
         E = np.zeros((self.nx, 2))
@@ -160,6 +179,7 @@ class BlackBoxModel:
         x = ca.SX.sym("x", self.nx)
         z = ca.SX.sym("z", self.nz)
         dd = ca.SX.sym("d", 2)
+        th = ca.SX.sym("theta", self.n_theta)
         ed = self._dist_matrix() @ dd * self.model_dt if self.disturbance == "state" else ca.DM.zeros(self.nx)
         if self.linear is not None:
             A, bfun = self.linear
@@ -170,10 +190,10 @@ class BlackBoxModel:
             xe = x
             lo, hi = self._bounds
             for _ in range(k):
-                xe = self.step(xe, z)[0] + ed
+                xe = self._call(xe, z, th)[0] + ed
                 xe = ca.fmin(ca.fmax(xe, ca.DM(lo)), ca.DM(hi))
-        _, ye = self.step(xe, z)
-        f = ca.Function("stage", [x, z, dd], [xe, ye])
+        _, ye = self._call(xe, z, th)
+        f = ca.Function("stage", [x, z, dd, th] if self.n_theta else [x, z, dd], [xe, ye])
         self._stage_cache[k] = f
         return f
 
@@ -182,7 +202,8 @@ class BlackBoxModel:
         """(x at the end of a stage of k control intervals, (NOx ppm, NH3 ppm) there) for dose u [g/s] and the
         stage disturbance d = (flow, T, NOx ppm, NO2 fraction)."""
         z = ca.vertcat(*self.z_norm(u, d[2], d[1], d[0]))
-        xe, ye = self.stage_function(k)(x, z, ca.vertcat(p[0], p[1]))
+        args = [x, z, ca.vertcat(p[0], p[1])] + ([p[2:]] if self.n_theta else [])
+        xe, ye = self.stage_function(k)(*args)
         nox, nh3 = self._physical(ye, d[2], p[0], p[1], smooth=True)
         return xe, ca.vertcat(nox, nh3)
 
@@ -211,17 +232,42 @@ class BlackBoxModel:
         x0 = np.zeros(self.nx) if self.initial_state_fn is None else np.asarray(self.initial_state_fn(z0), float)
         self.ekf_.reset(np.r_[x0, 0.0, 0.0])
         self._u_last = None
+        self._filtered: np.ndarray | None = None
+        if self.adaptation is not None:
+            self.adaptation.reset()
+            self.theta_ = self.adaptation.theta_.copy()
 
     def prepare(self, observation: np.ndarray, u_prev_g_s: float) -> np.ndarray:
         """EKF update with the last interval's input and the sensors now; returns the augmented estimate."""
         obs = np.asarray(observation, float)
         nox_in = float(obs[OBS_NOX_IN])
-        ua = np.r_[self.z_norm(u_prev_g_s, nox_in, float(obs[OBS_T]), float(obs[OBS_FLOW])), nox_in]
+        z = np.asarray(self.z_norm(u_prev_g_s, nox_in, float(obs[OBS_T]), float(obs[OBS_FLOW])), float)
+        if self.adaptation is not None:
+            self.theta_ = self.adaptation.observe(self._measured_outputs(obs), z).copy()
+        ua = np.r_[z, nox_in, self.theta_]
         if self._u_last is not None:
             ym = [obs[OBS_NOX_SENSOR]] + ([obs[OBS_NH3_SENSOR]] if self.nh3_sensor else [])
             self.ekf_.step(ua, np.asarray(ym, float))
         self._u_last = ua
         return self.ekf_.x_.copy()
+
+    def _measured_outputs(self, obs: np.ndarray) -> np.ndarray:
+        """The model's outputs as measured (normalised units): tailpipe NOx = NOx sensor - NH3 sensor (the NOx sensor
+        reads NOx + NH3) and NH3 from the NH3 sensor, low-pass filtered (first order, ``adaptation_filter_s``) with
+        the inlet NOx before the output transforms."""
+        raw = np.array([max(float(obs[OBS_NOX_SENSOR]) - float(obs[OBS_NH3_SENSOR]), 0.0),
+                        max(float(obs[OBS_NH3_SENSOR]), 0.0), max(float(obs[OBS_NOX_IN]), 0.0)])
+        if getattr(self, "_filtered", None) is None or not np.all(np.isfinite(self._filtered)):
+            self._filtered = raw
+        else:
+            a = self.model_dt / (self.model_dt + self.adaptation_filter_s)
+            self._filtered = self._filtered + a * (raw - self._filtered)
+        nox, nh3, nin = self._filtered
+        i, j = self.out_idx
+        y = np.zeros(len(self.ym))
+        y[i] = (float(nox_output(self.nox_kind, nox, nin)) - self.ym[i]) / self.ys[i]
+        y[j] = (float(nh3_output(self.nh3_kind, nh3)) - self.ym[j]) / self.ys[j]
+        return y
 
 
 class BlackBoxEstimator:
@@ -291,7 +337,10 @@ class BlackBoxMPC(NonlinearMPC):
 
     def stats(self) -> dict[str, float]:
         """:meth:`NonlinearMPC.stats` and the steps the slip cap limited (``slip_capped_steps``)."""
-        return {**super().stats(), "slip_capped_steps": float(self.slip_capped_steps_)}
+        out = {**super().stats(), "slip_capped_steps": float(self.slip_capped_steps_)}
+        if self.model.adaptation is not None:
+            out.update(self.model.adaptation.stats())
+        return out
 
     def _build(self) -> None:
         m = self.model
@@ -303,7 +352,7 @@ class BlackBoxMPC(NonlinearMPC):
         S = ca.SX.sym("S", H)
         x0 = ca.SX.sym("x0", nx)
         D = ca.SX.sym("D", N_DISTURBANCE, H)
-        Pd = ca.SX.sym("Pd", 2)
+        Pd = ca.SX.sym("Pd", m.n_stage_params)
         u_prev = ca.SX.sym("u_prev")
         g, lbg, ubg = [], [], []
         cost = 0
@@ -372,7 +421,7 @@ class BlackBoxMPC(NonlinearMPC):
         H, nx = self._H, self._nx
         dist = self._disturbances(obs)
         xa = self.estimator.make_step(obs, self._u_prev, dist[0])
-        x0, pd = xa[:nx], xa[nx:nx + 2]
+        x0, pd = xa[:nx], np.r_[xa[nx:nx + 2], self.model.theta_]
         pv = np.concatenate([x0, dist.ravel(), pd, [self._u_prev]])
         if self._w0 is None:
             w0 = np.concatenate([np.tile(x0, H), np.full(H, self._u_prev), np.zeros(H)])
@@ -450,12 +499,14 @@ INGREDIENTS = ("nh3_sensor", "preview", "offset_free", "slip_guard", "anr_band")
 
 def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_sensor: bool = True,
                    preview: bool = True, offset_free: bool = True, slip_guard: bool = True, anr_band: bool = True,
-                   **overrides: Any) -> BlackBoxMPC:
+                   online_adaptation: bool | None = None, **overrides: Any) -> BlackBoxMPC:
     """The NMPC on a model of :func:`ident.for_control.fit_rpem_for_control` (``info["kind"] == "rpem"``) or
     :func:`ident.for_control.fit_hw_for_control` (``"hammerstein_wiener"``), with the grey-box's footing: both
     tailpipe sensors in the (offset-free) estimator, the cycle preview, the slip guard. Each ingredient can be
     switched off (the ablation); ``overrides`` replace :data:`NMPC_SETTINGS` entries, and ``anr_band_hi`` the upper
-    ANR of :data:`ANR_BAND` (calibration: ``python -m experiments.calibrate_black_box``)."""
+    ANR of :data:`ANR_BAND` (calibration: ``python -m experiments.calibrate_black_box``). ``online_adaptation``
+    (RPEM only; None: the setting ``online_adaptation``): the RPEM's parameters re-estimated while the NMPC runs
+    (:class:`control.online_rpem.OnlineRPEM` with the options of the setting ``adaptation``)."""
     from control.factory import IDENT_SOLVER, SLIP_GUARD_PPM
     from ident.for_control import hw_linear_export
 
@@ -477,12 +528,22 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
         def initial(z0: np.ndarray) -> np.ndarray:
             return np.r_[x_init, np.asarray(z0, float)[:nx - n_out]]   # chain states, then the previous input
 
+        adapt = bool(cfg.get("online_adaptation", False)) if online_adaptation is None else bool(online_adaptation)
+        theta_kw: dict[str, Any] = {}
+        if adapt:
+            from control.online_rpem import OnlineRPEM
+
+            ad = OnlineRPEM(model, **dict(cfg.get("adaptation") or {}))
+            theta_kw = {"theta_step": ad.step_function, "theta0": ad.theta0, "adaptation": ad}
         bm = BlackBoxModel(step, features, info["z_mean"], info["z_scale"], info["y_mean"], info["y_scale"],
                            q_state=np.r_[np.full(n_out, cfg["q_state"]), np.zeros(nx - n_out)],
                            state_bounds=(np.r_[lo, np.full(nx - n_out, -1e6)], np.r_[hi, np.full(nx - n_out, 1e6)]),
                            initial_state=initial, p0_state=np.r_[np.full(n_out, 0.1), np.zeros(nx - n_out)],
-                           **common)
+                           **common, **theta_kw)
     else:
+        if online_adaptation:
+            raise ValueError("online_adaptation is for the RPEM (a recursive method); the Hammerstein-Wiener model is "
+                             "fitted in batch")
         step, A, bfun = hw_linear_export(model)
         nx = A.shape[0]
         bm = BlackBoxModel(step, features, info["z_mean"], info["z_scale"], info["y_mean"], info["y_scale"],

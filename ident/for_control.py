@@ -352,3 +352,57 @@ def hw_multistep_refine(model: Any, u: np.ndarray, y: np.ndarray, weights: np.nd
     if np.isfinite(r1) and r1 < r0:
         model._store(st, res.x)
     return model
+
+
+# ------------------------------------------------------------------------------- online adaptation of the RPEM
+def rpem_parametric_functions(model: Any) -> dict[str, ca.Function]:
+    """CasADi functions of a fitted for-control RPEM (:func:`fit_rpem_for_control`: one-state chains, so every model
+    state is an output; inputs the scaled features) with its parameters ``theta`` as an input, for online
+    adaptation (:mod:`control.online_rpem`):
+
+    * ``step``: ``(x, z, theta) -> (x_next, y)``, equal to ``model.to_casadi()`` at ``theta = model.theta_`` (same
+      state layout: the chain states, then the previous input when a regressor uses an input derivative);
+    * ``regressor``: ``(y, z, z_prev) -> Phi`` (n_outputs, n_params): the right-hand side is linear in theta,
+      ``dx/dt = Phi(x, z, z') theta``, evaluated at the chain states ``y`` with ``z' = (z - z_prev) / Ts``;
+    * ``jacobian``: ``(y, z, z_prev, theta) -> d(dx/dt)/dx`` of the chain states (the linearisation whose
+      eigenvalues the RPEM's stability projection checks).
+    """
+    from ident.rpem.multistep import chain_rhs
+
+    s = model.structure_
+    if s.n_chain != 1 or model.normalize or model.input_transforms or model.output != "identity":
+        raise ValueError("rpem_parametric_functions needs the for-control RPEM: one-state chains, identity output, "
+                         "no normalisation or input transforms (fit_rpem_for_control)")
+    N, m = s.n_states, s.n_inputs
+    ts = float(model.ts_model)
+    prev = bool(s.uses_derivatives)
+    x = ca.SX.sym("x", N + (m if prev else 0))
+    z = ca.SX.sym("z", m)
+    th = ca.SX.sym("theta", s.n_params)
+    du = (z - x[N:]) / ts if prev else ca.SX.zeros(m)
+    w = ca.vertcat(z, du)
+    h = ts / int(model.n_substeps_)
+    xn = x[:N]
+    for _ in range(int(model.n_substeps_)):
+        if model.method == "euler":
+            xn = xn + h * chain_rhs(s, xn, w, th)
+        else:
+            xn = xn + h * chain_rhs(s, xn + 0.5 * h * chain_rhs(s, xn, w, th), w, th)
+    y = []
+    for k in range(s.n_outputs):
+        yk = x[k]
+        if np.isfinite(model.y_lo_[k]):
+            yk = ca.fmax(yk, float(model.y_lo_[k]))
+        if np.isfinite(model.y_hi_[k]):
+            yk = ca.fmin(yk, float(model.y_hi_[k]))
+        y.append(yk)
+    step = ca.Function("step", [x, z, th], [ca.vertcat(xn, z) if prev else xn, ca.vertcat(*y)],
+                       ["x", "z", "theta"], ["x_next", "y"])
+    ys = ca.SX.sym("y", N)
+    zp = ca.SX.sym("z_prev", m)
+    wr = ca.vertcat(z, (z - zp) / ts)
+    rhs = chain_rhs(s, ys, wr, th)
+    regressor = ca.Function("regressor", [ys, z, zp], [ca.jacobian(rhs, th)], ["y", "z", "z_prev"], ["Phi"])
+    jacobian = ca.Function("jacobian", [ys, z, zp, th], [ca.jacobian(rhs, ys)], ["y", "z", "z_prev", "theta"],
+                           ["dfdx"])
+    return {"step": step, "regressor": regressor, "jacobian": jacobian}

@@ -157,3 +157,101 @@ def test_black_box_nmpc_takes_the_weights_and_the_planned_slip_limit(models: dic
     model, info = load_for_control("rpem", models)
     p = black_box_nmpc(model, info, quick=True, nox_weight=40.0, plan_slip_ppm=5.0)
     assert p.weights.nox == 40.0 and p.weights.nh3 == 60.0 and p.slip_limit_ppm == 5.0
+
+
+# ----------------------------------------------------------------------------- online adaptation of the RPEM
+def test_parametric_rpem_equals_the_fitted_export(models: dict) -> None:
+    """The RPEM with its parameters as an input is the fitted model's CasADi export at the fitted parameters."""
+    from ident.for_control import rpem_parametric_functions
+
+    model, _ = load_for_control("rpem", models)
+    f, g = rpem_parametric_functions(model), model.to_casadi()
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        x, z = rng.normal(size=g.size1_in(0)), rng.normal(size=g.size1_in(1))
+        for a, b in zip(g(x, z), f["step"](x, z, model.theta_), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    y, zp = x[:2], (x[2:] if x.size > 2 else z)
+    def rhs(yy: np.ndarray) -> np.ndarray:   # dy/dt = Phi theta: linear in theta
+        return np.asarray(f["regressor"](yy, z, zp)) @ model.theta_
+
+    e = 1e-6
+    fd = np.column_stack([(rhs(y + e * np.eye(2)[i]) - rhs(y - e * np.eye(2)[i])) / (2 * e) for i in range(2)])
+    np.testing.assert_allclose(np.asarray(f["jacobian"](y, z, zp, model.theta_)), fd, rtol=1e-5, atol=1e-9)
+    import copy
+
+    bad = copy.copy(model)
+    bad.normalize = True
+    with pytest.raises(ValueError, match="for-control RPEM"):
+        rpem_parametric_functions(bad)
+
+
+def _simulate(step, theta: np.ndarray, z: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    x, ys = x0.copy(), []
+    for k in range(len(z)):
+        ys.append(np.asarray(step(x, z[k], theta)[1]).ravel())
+        x = np.asarray(step(x, z[k], theta)[0]).ravel()
+    return np.asarray(ys)
+
+
+def test_online_rpem_tracks_a_changed_dose_gain_and_holds_without_information(models: dict) -> None:
+    """The adapted dose term moves most of the way to a plant whose dose gain is 50 % larger (noise-free data from
+    the model itself); a plant equal to the model leaves the estimate near the identified parameters; bad settings
+    and unknown terms are refused by name."""
+    from control.online_rpem import OnlineRPEM
+
+    model, _ = load_for_control("rpem", models)
+    ad = OnlineRPEM(model)
+    j = ad.adapted_[1]                                   # the NOx chain's dose (u1) term
+    rng = np.random.default_rng(0)
+    n = 2400
+    z = np.repeat(rng.normal(scale=0.5, size=(n // 40, 4)), 40, axis=0)
+    x0 = np.zeros(ad.step_function.size1_in(0))
+    x0[2:] = z[0]
+    true = model.theta_.copy()
+    true[j] *= 1.5
+    y = _simulate(ad.step_function, true, z, x0)
+    for k in range(1, n):
+        ad.observe(y[k], z[k - 1])
+    assert abs(ad.theta_[j] - true[j]) < 0.2 * abs(true[j] - model.theta_[j])
+    assert ad.n_updates_ > 0 and ad.stats()["adaptation_max_rel_change"] > 0.3
+    same = OnlineRPEM(model)
+    y0 = _simulate(same.step_function, model.theta_, z, x0)
+    for k in range(1, n):
+        same.observe(y0[k], z[k - 1])
+    # the window's Euler sum is not the model's midpoint step: a small bias, far below the change above
+    assert np.all(np.abs(same.theta_ - model.theta_) <= 0.1 * abs(true[j] - model.theta_[j]))
+    with pytest.raises(ValueError, match="forgetting"):
+        OnlineRPEM(model, forgetting=1.5)
+    with pytest.raises(ValueError, match="not a term of the model"):
+        OnlineRPEM(model, terms=((0, "u9"),))
+
+
+def test_online_rpem_falls_back_to_the_identified_parameters(models: dict) -> None:
+    """Outputs the adapted terms cannot explain (noise) make the adapted model predict worse than the identified
+    one on the next windows: the estimate returns to the identified parameters (counted)."""
+    from control.online_rpem import OnlineRPEM
+
+    model, _ = load_for_control("rpem", models)
+    ad = OnlineRPEM(model, noise_sd=1e-4, fallback_windows=4, fallback_ratio=1.1)
+    rng = np.random.default_rng(3)
+    for _ in range(2000):
+        ad.observe(rng.normal(scale=0.3, size=2), rng.normal(size=4))
+    assert ad.n_fallbacks_ > 0
+
+
+def test_adaptive_rpem_nmpc_runs_in_closed_loop(models: dict) -> None:
+    """The RPEM NMPC with online adaptation: the parameters are NLP parameters, updated while it runs; without
+    adaptation the model has no parameter inputs (the fixed NMPC, unchanged); the HW model refuses adaptation."""
+    model, info = load_for_control("rpem", models)
+    fixed = black_box_nmpc(model, info, quick=True)
+    assert fixed.model.n_theta == 0 and fixed.model.n_stage_params == 2
+    policy = black_box_nmpc(model, info, quick=True, online_adaptation=True)
+    assert policy.model.n_theta == model.theta_.size
+    res = evaluate(policy, cycles=(cycle_segment("whtc", 60.0),), seeds=(0,), env_kwargs=policy.env_kwargs)[0]
+    st = policy.stats()
+    assert np.isfinite(res.kpis["tailpipe_nox_g_per_kwh"]) and st["solves"] == 120
+    assert st["adaptation_updates"] + st["adaptation_rejected"] + st["adaptation_fallbacks"] >= 10
+    hw, hinfo = load_for_control("hammerstein_wiener", models)
+    with pytest.raises(ValueError, match="online_adaptation is for the RPEM"):
+        black_box_nmpc(hw, hinfo, quick=True, online_adaptation=True)
