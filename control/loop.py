@@ -34,9 +34,10 @@ VALIDATION_SEED = 99  # sensor noise and excitation seed of the validation recor
 QUICK_SEGMENT_S = 600.0  # s of each held-out cycle in quick mode
 QUICK_IDENT_SEEDS = 3  # identification cycles in quick mode (of ident.for_control.IDENT_SEEDS)
 #: the identification ablation's models: without control-relevant excitation (the single over-dosing design of
-#: :func:`black_box_excitation` on the same cycles), and the RPEM without storage regressors (Paper III's linear)
+#: :func:`black_box_excitation` on the same cycles), the RPEM without storage regressors (Paper III's linear) and
+#: without the multi-step refinement (the equation-error estimate; only when :data:`RPEM_FIT` refines)
 IDENT_ABLATIONS = ("rpem-no_control_relevant_excitation", "hammerstein_wiener-no_control_relevant_excitation",
-                   "rpem-no_storage_terms")
+                   "rpem-no_storage_terms", "rpem-no_multistep")
 #: mean NH3 slip limit [ppm] within which a gap counts as closed (Euro VI)
 SLIP_LIMIT_PPM = EURO_VI_NH3_SLIP_LIMIT_PPM
 #: iterations of closed-loop identification of the RPEM (:func:`closed_loop_identification`) in the default loop
@@ -45,6 +46,12 @@ SLIP_LIMIT_PPM = EURO_VI_NH3_SLIP_LIMIT_PPM
 #: --configs '{}' '{"anr_band_hi": 20, "nox_weight": 30}'``: mean NOx with the default NMPC 0.854 (iteration 0),
 #: 1.428 (1), 2.731 g/kWh (2): each iteration made the model and its NMPC more cautious]
 CLOSED_LOOP_ITERATIONS = 0
+#: options of :func:`ident.for_control.fit_rpem_for_control` in the loop: the multi-step (horizon) prediction-error
+#: refinement over the NMPC's 80-s horizon (Shook, Mohtadi and Shah 1991) of every candidate term set, the term set
+#: then chosen by the 160-step FIT as before [MEASURE]
+RPEM_FIT: dict[str, Any] = {"multistep_horizon": 160, "max_nfev": 10}
+#: quick mode (``make demo``): the equation-error estimate only (the refinement takes minutes)
+QUICK_RPEM_FIT: dict[str, Any] = {}
 #: the closed-loop records' multiplicative dither on the NMPC's dose (random steps in [-d, d] held 2-20 s) [-]
 CLOSED_LOOP_DITHER = 0.2
 
@@ -71,21 +78,21 @@ def held_out(quick: bool) -> list[Any]:
 
 def closed_loop_identification(records: list[Any], validation: list[Any], seeds: tuple[int, ...], iterations: int,
                                dither: float = CLOSED_LOOP_DITHER, duration_s: float | None = None,
-                               quick: bool = False, nmpc_overrides: dict[str, Any] | None = None
-                               ) -> list[tuple[Any, dict[str, Any]]]:
+                               quick: bool = False, nmpc_overrides: dict[str, Any] | None = None,
+                               fit_options: dict[str, Any] | None = None) -> list[tuple[Any, dict[str, Any]]]:
     """Iterated closed-loop identification of the RPEM (Schrama 1992; Van den Hof and Schrama 1995; Hjalmarsson
     2005): fit on ``records``, run the NMPC on that model (:func:`control.blackbox.black_box_nmpc`) in closed loop
     with a multiplicative dither on its dose (:func:`ident.control_relevant.closed_loop_record`) on the random
     cycles ``seeds`` and on the validation cycle, pool the closed-loop records with all earlier ones, re-fit (the term
     selection's multi-step FIT also on the closed-loop validation records), ``iterations`` times. Returns
     ``(model, info)`` per iteration (0: the open-loop fit); ``info["closed_loop"]`` has the closed-loop KPIs of the
-    records each model was fitted after."""
+    records each model was fitted after. ``fit_options``: of :func:`ident.for_control.fit_rpem_for_control`."""
     from control.blackbox import black_box_nmpc
     from ident.control_relevant import closed_loop_record
     from ident.for_control import VALIDATION_SEED, fit_rpem_for_control
 
     pooled, val = list(records), list(validation)
-    model, info = fit_rpem_for_control(pooled, validation=val)
+    model, info = fit_rpem_for_control(pooled, validation=val, **(fit_options or {}))
     info["closed_loop_iteration"] = 0
     out = [(model, info)]
     for it in range(1, int(iterations) + 1):
@@ -94,7 +101,7 @@ def closed_loop_identification(records: list[Any], validation: list[Any], seeds:
         new_val = closed_loop_record(policy, VALIDATION_SEED, dither=dither, duration_s=duration_s)
         pooled += new
         val.append(new_val)
-        model, info = fit_rpem_for_control(pooled, validation=val)
+        model, info = fit_rpem_for_control(pooled, validation=val, **(fit_options or {}))
         info["closed_loop_iteration"] = it
         info["closed_loop"] = [{"seed": r.meta["seed"], "tailpipe_nox_g_per_kwh": r.meta["kpis"].get(
             "tailpipe_nox_g_per_kwh"), "mean_nh3_slip_ppm": r.meta["kpis"].get("mean_nh3_slip_ppm")}
@@ -106,7 +113,8 @@ def closed_loop_identification(records: list[Any], validation: list[Any], seeds:
 def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
                          closed_loop_iterations: int = CLOSED_LOOP_ITERATIONS, keep_iterations: bool = False,
                          closed_loop_nmpc: dict[str, Any] | None = None, kinds: tuple[str, ...] = BLACK_BOX,
-                         hw_fit: dict[str, Any] | None = None) -> dict[str, Any]:
+                         hw_fit: dict[str, Any] | None = None, rpem_fit: dict[str, Any] | None = None
+                         ) -> dict[str, Any]:
     """Identification for control (:mod:`ident.for_control`): control-relevant records over the random cycles of
     :data:`ident.for_control.IDENT_SEEDS` (quick: the first :data:`QUICK_IDENT_SEEDS` seeds), the two-output RPEM and
     Hammerstein-Wiener models, saved to ``out``; their k-step FIT [%] on the validation record (random cycle
@@ -116,7 +124,9 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
     ``keep_iterations`` every iteration is kept as a model ``rpem-iter<i>`` too; ``closed_loop_nmpc``: overrides of
     the NMPC that runs the closed-loop experiments (:func:`control.blackbox.black_box_nmpc`). A failed fit is reported
     (``{"error": ...}``). ``kinds``: the model kinds to fit;
-    ``hw_fit``: :func:`ident.for_control.fit_hw_for_control` options (calibration of the model structure)."""
+    ``hw_fit``: :func:`ident.for_control.fit_hw_for_control` options (calibration of the model structure);
+    ``rpem_fit``: :func:`ident.for_control.fit_rpem_for_control` options (default :data:`RPEM_FIT`; quick mode:
+    :data:`QUICK_RPEM_FIT`)."""
     from ident.for_control import (
         DESIGNS,
         IDENT_SEEDS,
@@ -132,7 +142,8 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
     seeds = IDENT_SEEDS[:QUICK_IDENT_SEEDS] if quick else IDENT_SEEDS
     records = identification_records(seeds)
     validation = identification_records((VALIDATION_SEED,))
-    fits: dict[str, Any] = {"rpem": lambda r: fit_rpem_for_control(r, validation=validation),
+    rfit = dict((QUICK_RPEM_FIT if quick else RPEM_FIT) if rpem_fit is None else rpem_fit)
+    fits: dict[str, Any] = {"rpem": lambda r: fit_rpem_for_control(r, validation=validation, **rfit),
                             "hammerstein_wiener": lambda r: fit_hw_for_control(r, **(hw_fit or {}))}
     fits = {k: f for k, f in fits.items() if k in kinds}
     variants: list[tuple[str, str, Any]] = [(n, n, f) for n, f in fits.items()]
@@ -142,7 +153,8 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
         def iterated(i: int) -> Any:
             if not iters:
                 iters.extend(closed_loop_identification(records, validation, tuple(seeds), closed_loop_iterations,
-                                                        quick=quick, nmpc_overrides=closed_loop_nmpc))
+                                                        quick=quick, nmpc_overrides=closed_loop_nmpc,
+                                                        fit_options=rfit))
             return iters[i]
 
         variants[0] = ("rpem", "rpem", lambda r: iterated(-1))
@@ -155,7 +167,11 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
             variants.append((f"{n}-no_control_relevant_excitation", n, lambda r, f=f: f(over)))
         if "rpem" in kinds:
             variants.append(("rpem-no_storage_terms", "rpem",
-                             lambda r: fit_rpem_for_control(r, storage_terms=False)))
+                             lambda r: fit_rpem_for_control(r, storage_terms=False, validation=validation, **rfit)))
+            if rfit.get("multistep_horizon"):
+                variants.append(("rpem-no_multistep", "rpem",
+                                 lambda r: fit_rpem_for_control(r, validation=validation,
+                                                                **{**rfit, "multistep_horizon": 0})))
     info: dict[str, Any] = {"data": {"seeds": list(seeds), "designs": list(DESIGNS), "n_records": len(records),
                                      "validation_seed": VALIDATION_SEED}, "models": {}}
     for name, kind, fit in variants:

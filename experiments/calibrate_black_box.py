@@ -3,12 +3,14 @@
     python -m experiments.calibrate_black_box [--models rpem hammerstein_wiener] [--seeds 5 6] [--duration 600]
         [--configs '{"terminal_s": 0}' '{"anr_band_hi": 2.0}' ...] [--slip-target 8] [--json PATH]
         [--identified JSON] [--closed-loop-iterations N] [--hw-fit '{"multistep_horizon": 160}']
+        [--rpem-fit '{"multistep_horizon": 0}']
 
 ``--identified``: reuse the models of an earlier run (its JSON, key ``identification``) instead of identifying
 again, so a sweep of NMPC settings costs only the closed-loop episodes. ``--closed-loop-iterations N``: identify the
 RPEM by N iterations of closed-loop identification (:func:`control.loop.closed_loop_identification`) and keep every
 iteration as a model ``rpem-iter<i>`` (``--models rpem-iter0 ... rpem``: the calibration KPIs per iteration).
-``--hw-fit``: options of :func:`ident.for_control.fit_hw_for_control` (the Hammerstein-Wiener model structure).
+``--hw-fit`` / ``--rpem-fit``: options of :func:`ident.for_control.fit_hw_for_control` (the Hammerstein-Wiener
+model structure) / :func:`ident.for_control.fit_rpem_for_control` (default :data:`control.loop.RPEM_FIT`).
 
 The models are identified as in the loop (:func:`control.loop.identify_for_control`); each configuration (a JSON
 dict of :func:`control.blackbox.black_box_nmpc` overrides; ``{}`` is the current default) runs in closed loop on
@@ -73,6 +75,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                     help="iterations of closed-loop identification of the RPEM (models rpem-iter<i> kept)")
     ap.add_argument("--closed-loop-nmpc", default="{}", help="JSON overrides of the closed-loop experiments' NMPC")
     ap.add_argument("--hw-fit", default="{}", help="JSON dict of ident.for_control.fit_hw_for_control options")
+    ap.add_argument("--rpem-fit", default=None, help="JSON dict of ident.for_control.fit_rpem_for_control options")
     add_arguments(ap)
     args = ap.parse_args(argv)
     if args.workers is None:
@@ -85,18 +88,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         ap.error(f"--configs: not JSON ({exc})")
     try:
         hw_fit = json.loads(args.hw_fit)
+        rpem_fit = None if args.rpem_fit is None else json.loads(args.rpem_fit)
     except json.JSONDecodeError as exc:
-        ap.error(f"--hw-fit: not JSON ({exc})")
+        ap.error(f"--hw-fit/--rpem-fit: not JSON ({exc})")
     out = run_folder("calibrate_black_box", json_path=args.json)
     if args.identified is not None:
         black_box = json.loads(args.identified.read_text())["identification"]
     elif args.closed_loop_iterations is None:
         black_box = identify_for_control(out, kinds=tuple(m for m in args.models if m in BLACK_BOX) or BLACK_BOX,
-                                         hw_fit=hw_fit)
+                                         hw_fit=hw_fit, rpem_fit=rpem_fit)
     else:
         black_box = identify_for_control(out, closed_loop_iterations=args.closed_loop_iterations,
                                          keep_iterations=True, closed_loop_nmpc=json.loads(args.closed_loop_nmpc),
-                                         hw_fit=hw_fit)
+                                         hw_fit=hw_fit, rpem_fit=rpem_fit)
     tasks = [{"model": "lookup_table", "config": {}, "seed": s, "duration": args.duration, "black_box": black_box}
              for s in args.seeds]
     tasks += [{"model": m, "config": c, "seed": s, "duration": args.duration, "black_box": black_box}
@@ -119,7 +123,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             if worst <= args.slip_target and (best is None or nox < best[0]):
                 best = (nox, c)
         chosen[m] = None if best is None else best[1]
-    doc = {"seeds": args.seeds, "duration_s": args.duration, "hw_fit": hw_fit, "slip_target_ppm": args.slip_target,
+    doc = {"seeds": args.seeds, "duration_s": args.duration, "hw_fit": hw_fit, "rpem_fit": rpem_fit,
+           "slip_target_ppm": args.slip_target,
            "table": table, "chosen": chosen, "identification": black_box}
     print("chosen:", json.dumps(chosen))
     write_json(out / "calibrate_black_box.json", doc)

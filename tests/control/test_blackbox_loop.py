@@ -76,6 +76,7 @@ def test_black_box_nmpc_closes_the_loop(models: dict, name: str, capfd) -> None:
 def test_ablation_variants_switch_one_ingredient_off(models: dict) -> None:
     names = ablation_controllers()
     assert "mpc_rpem-no_preview" in names and "mpc_hammerstein_wiener-no_nh3_sensor" in names
+    assert "mpc_rpem-no_multistep" in names and "mpc_hammerstein_wiener-no_multistep" not in names
     p = loop_controller("mpc_rpem-no_offset_free", None, models, quick=True)
     assert p.model.disturbance == "none"
     p = loop_controller("mpc_hammerstein_wiener-no_slip_guard", None, models, quick=True)
@@ -255,3 +256,19 @@ def test_adaptive_rpem_nmpc_runs_in_closed_loop(models: dict) -> None:
     hw, hinfo = load_for_control("hammerstein_wiener", models)
     with pytest.raises(ValueError, match="online_adaptation is for the RPEM"):
         black_box_nmpc(hw, hinfo, quick=True, online_adaptation=True)
+
+
+def test_rpem_multistep_refinement_improves_the_horizon_prediction(records: list) -> None:
+    """The loop's RPEM refinement (RPEM_FIT: the multi-step prediction error over the NMPC's horizon, Shook, Mohtadi
+    and Shah 1991) predicts the horizon at least as well as the equation-error estimate it starts from, on the
+    records it was fitted on (one term set, so the selection cannot differ)."""
+    from control.loop import QUICK_RPEM_FIT, RPEM_FIT
+
+    assert RPEM_FIT.get("multistep_horizon", 0) > 0 and not QUICK_RPEM_FIT.get("multistep_horizon")
+    ls, ls_info = fit_rpem_for_control(records, storage_terms=False)
+    ms, ms_info = fit_rpem_for_control(records, storage_terms=False, multistep_horizon=40, max_nfev=5)
+    assert ms_info["multistep_horizon"] == 40 and ls_info["multistep_horizon"] == 0
+    assert not np.allclose(ms.theta_, ls.theta_)
+    f_ls = np.mean([np.mean(k_step_fit(ls.to_casadi(), ls_info, r, 40)) for r in records])
+    f_ms = np.mean([np.mean(k_step_fit(ms.to_casadi(), ms_info, r, 40)) for r in records])
+    assert f_ms >= f_ls - 0.5
