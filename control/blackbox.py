@@ -298,13 +298,24 @@ class BlackBoxMPC(NonlinearMPC):
     terminal_s : the last stage's NOx and NH3 emission rates held for this many seconds as terminal cost.
     anr_band : ``(lo, hi)`` ANR band of the planned dose around the feedforward on the stage's NOx flow, plus
         ``band_floor_g_s`` (None: no band). ``lo`` applies only where the band is feasible with the rate limit.
+    band_release_ppm, band_release_s : the lower band is released (no lower bound) while the tailpipe NH3 sensor
+        reads above ``band_release_ppm`` and for ``band_release_s`` seconds after (None: never released). The lower
+        band keeps the plan in the identified region while nothing slips; once the sensor shows slip, forcing a
+        dose is the wrong constraint (a black-box model does not see a heat-up desorb the store), and the NMPC's own
+        slip prediction, corrected by the NH3 sensor, decides.
     """
 
     def __init__(self, model: BlackBoxModel, stages: Sequence[int] = (4,) * 20,
                  anr_band: tuple[float, float] | None = None,
                  band_floor_g_s: float = 0.05, terminal_s: float = 0.0, terminal_slip_ppm: float | None = None,
-                 **kwargs: Any) -> None:
+                 band_release_ppm: float | None = None, band_release_s: float = 60.0, **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)
+        if band_release_ppm is not None and not (np.isfinite(band_release_ppm) and band_release_ppm >= 0):
+            raise ValueError(f"band_release_ppm must be a number >= 0 or None, got {band_release_ppm!r}")
+        if not (np.isfinite(band_release_s) and band_release_s >= 0):
+            raise ValueError(f"band_release_s must be a number >= 0, got {band_release_s!r}")
+        self.band_release_ppm = None if band_release_ppm is None else float(band_release_ppm)
+        self.band_release_s = float(band_release_s)
         self.stages = [int(k) for k in stages]
         self.anr_band = anr_band
         self.band_floor_g_s = band_floor_g_s
@@ -334,10 +345,13 @@ class BlackBoxMPC(NonlinearMPC):
     def _reset_episode(self) -> None:
         super()._reset_episode()
         self.slip_capped_steps_ = 0
+        self.band_released_steps_ = 0
+        self._release_left = 0
 
     def stats(self) -> dict[str, float]:
         """:meth:`NonlinearMPC.stats` and the steps the slip cap limited (``slip_capped_steps``)."""
-        out = {**super().stats(), "slip_capped_steps": float(self.slip_capped_steps_)}
+        out = {**super().stats(), "slip_capped_steps": float(self.slip_capped_steps_),
+               "band_released_steps": float(self.band_released_steps_)}
         if self.model.adaptation is not None:
             out.update(self.model.adaptation.stats())
         return out
@@ -354,6 +368,7 @@ class BlackBoxMPC(NonlinearMPC):
         D = ca.SX.sym("D", N_DISTURBANCE, H)
         Pd = ca.SX.sym("Pd", m.n_stage_params)
         u_prev = ca.SX.sym("u_prev")
+        band_lo = ca.SX.sym("band_lo")      # the lower band's ANR this solve (0 while released)
         g, lbg, ubg = [], [], []
         cost = 0
         x = x0
@@ -381,7 +396,7 @@ class BlackBoxMPC(NonlinearMPC):
                     # the lower band, only as far as the rate limit can reach it from the last dose (and the
                     # injector allows): a bound on parameters only, so it never makes the NLP infeasible
                     reach = u_prev + self.max_rate_change_g_s2 * (self.dt + sum(self.stages[1:i + 1]) * self.dt)
-                    g.append(U[i] - ca.fmin(ca.fmin(self.anr_band[0] * ff, reach), self.max_rate_g_s))
+                    g.append(U[i] - ca.fmin(ca.fmin(band_lo * ff, reach), self.max_rate_g_s))
                     lbg.append(0.0)
                     ubg.append(ca.inf)
             flow = d[0]
@@ -401,10 +416,24 @@ class BlackBoxMPC(NonlinearMPC):
         self._ubw = np.concatenate([np.tile(xub, H), np.full(H, self.max_rate_g_s), np.full(H, np.inf)])
         self._lbg, self._ubg = np.array(lbg), np.array(ubg)
         wv = ca.vertcat(ca.vec(X), U, S)
-        pv = ca.vertcat(x0, ca.vec(D), Pd, u_prev)
+        pv = ca.vertcat(x0, ca.vec(D), Pd, u_prev, band_lo)
         opts = {**solver_defaults(self.solver), **(self.solver_options or {})}
         self._solver = ca.nlpsol("mpc", self.solver, {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}, opts)
         self._H, self._nx = H, nx
+
+    def _band_lo(self, obs: np.ndarray) -> float:
+        """The lower band's ANR for this solve: 0 while released (``band_release_ppm``), else the band's."""
+        lo = 0.0 if self.anr_band is None else float(self.anr_band[0])
+        if lo <= 0.0 or self.band_release_ppm is None:
+            return lo
+        if len(obs) > OBS_NH3_SENSOR and float(obs[OBS_NH3_SENSOR]) > self.band_release_ppm:
+            self._release_left = round(self.band_release_s / self.dt)
+        elif self._release_left > 0:
+            self._release_left -= 1
+        else:
+            return lo
+        self.band_released_steps_ += 1
+        return 0.0
 
     def _disturbances(self, observation: np.ndarray) -> np.ndarray:
         """(H, 4) stage disturbances: block means of the cycle preview over each stage, or the measurement held."""
@@ -422,7 +451,7 @@ class BlackBoxMPC(NonlinearMPC):
         dist = self._disturbances(obs)
         xa = self.estimator.make_step(obs, self._u_prev, dist[0])
         x0, pd = xa[:nx], np.r_[xa[nx:nx + 2], self.model.theta_]
-        pv = np.concatenate([x0, dist.ravel(), pd, [self._u_prev]])
+        pv = np.concatenate([x0, dist.ravel(), pd, [self._u_prev, self._band_lo(obs)]])
         if self._w0 is None:
             w0 = np.concatenate([np.tile(x0, H), np.full(H, self._u_prev), np.zeros(H)])
         else:
@@ -559,6 +588,8 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
     mpc = BlackBoxMPC(bm, stages=stages, anr_band=band, preview=preview,
                       slip_guard=(OBS_NH3_SENSOR, SLIP_GUARD_PPM) if (slip_guard and nh3_sensor) else None,
                       terminal_s=cfg["terminal_s"], weights=weights,
+                      band_release_ppm=cfg.get("band_release_ppm"),
+                      band_release_s=float(cfg.get("band_release_s", 60.0)),
                       slip_limit_ppm=float(cfg.get("plan_slip_ppm", SLIP_GUARD_PPM)), **kw)
     mpc.env_kwargs = {"nh3_sensor": True} if (nh3_sensor or slip_guard) else {}
     return mpc

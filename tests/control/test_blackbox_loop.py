@@ -272,3 +272,22 @@ def test_rpem_multistep_refinement_improves_the_horizon_prediction(records: list
     f_ls = np.mean([np.mean(k_step_fit(ls.to_casadi(), ls_info, r, 40)) for r in records])
     f_ms = np.mean([np.mean(k_step_fit(ms.to_casadi(), ms_info, r, 40)) for r in records])
     assert f_ms >= f_ls - 0.5
+
+
+def test_lower_band_is_released_while_the_nh3_sensor_shows_slip(models: dict) -> None:
+    """band_release_ppm: no lower bound on the dose while the NH3 sensor reads above it and band_release_s after;
+    then the band again; never released without the setting; bad settings refused by name."""
+    model, info = load_for_control("hammerstein_wiener", models)
+    policy = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, band_release_ppm=2.0, band_release_s=1.0)
+    assert policy.anr_band[0] == 1.0
+    obs = np.zeros(6)
+    assert policy._band_lo(obs) == 1.0
+    obs[5] = 5.0
+    assert policy._band_lo(obs) == 0.0
+    obs[5] = 0.0
+    assert [policy._band_lo(obs) for _ in range(3)] == [0.0, 0.0, 1.0]    # 1 s = 2 steps after the slip
+    assert policy.stats()["band_released_steps"] == 3
+    never = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0)
+    assert never._band_lo(np.r_[np.zeros(5), 50.0]) == 1.0
+    with pytest.raises(ValueError, match="band_release_ppm"):
+        black_box_nmpc(model, info, quick=True, band_release_ppm=-1.0)
