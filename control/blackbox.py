@@ -243,7 +243,9 @@ class BlackBoxModel:
         nox_in = float(obs[OBS_NOX_IN])
         z = np.asarray(self.z_norm(u_prev_g_s, nox_in, float(obs[OBS_T]), float(obs[OBS_FLOW])), float)
         if self.adaptation is not None:
-            self.theta_ = self.adaptation.observe(self._measured_outputs(obs), z).copy()
+            y_meas = self._measured_outputs(obs)
+            informative = float(self._filtered[0]) >= self.adaptation.min_nox_ppm
+            self.theta_ = self.adaptation.observe(y_meas, z, informative).copy()
         ua = np.r_[z, nox_in, self.theta_]
         if self._u_last is not None:
             ym = [obs[OBS_NOX_SENSOR]] + ([obs[OBS_NH3_SENSOR]] if self.nh3_sensor else [])

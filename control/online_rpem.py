@@ -63,12 +63,16 @@ class OnlineRPEM:
         against the prior).
     margin_per_s : stability margin of the projection [1/s].
     fallback_ratio, fallback_windows : the fallback rule (module docstring).
+    min_nox_ppm : windows in which the measured tailpipe NOx falls below this are not used [ppm] (read by the
+        NMPC's model, :class:`control.blackbox.BlackBoxModel`, which passes ``informative``): the log slip ratio of
+        a reading near zero is the sensor's noise (2 ppm), floored, not the plant's conversion [chosen: 5 times that
+        noise].
     """
 
     def __init__(self, model: Any, terms: Sequence[tuple[int, str]] = ADAPTED_TERMS, forgetting: float = 0.98,
                  window_steps: int = 10, prior_sd: float = 0.5, prior_floor: float = 0.05,
                  noise_sd: Sequence[float] | float = 0.01, margin_per_s: float = 1e-4, fallback_ratio: float = 1.5,
-                 fallback_windows: int = 12) -> None:
+                 fallback_windows: int = 12, min_nox_ppm: float = 10.0) -> None:
         from ident.for_control import rpem_parametric_functions
 
         if not 0.0 < float(forgetting) <= 1.0:
@@ -101,6 +105,7 @@ class OnlineRPEM:
         self.margin_per_s = float(margin_per_s)
         self.fallback_ratio = float(fallback_ratio)
         self.fallback_windows = int(fallback_windows)
+        self.min_nox_ppm = float(min_nox_ppm)
         scale = np.maximum(np.abs(self.theta0[self.adapted_]), float(prior_floor)) * float(prior_sd)
         self.R0_ = np.diag(1.0 / scale ** 2)
         self.noise_sd = np.broadcast_to(np.asarray(noise_sd, float), (self.n_outputs,)).copy()
@@ -117,13 +122,16 @@ class OnlineRPEM:
         self._phi: list[np.ndarray] = []
         self._z_prev: np.ndarray | None = None
         self._errors: list[tuple[float, float]] = []
+        self._informative = True
+        self.n_skipped_ = 0
         self.n_updates_ = 0
         self.n_rejected_ = 0
         self.n_fallbacks_ = 0
 
-    def observe(self, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    def observe(self, y: np.ndarray, z: np.ndarray, informative: bool = True) -> np.ndarray:
         """One control interval: the measured outputs ``y`` now (model units) and the model input ``z`` over the
-        interval that led here; updates at the end of each window. Returns the parameters to use now."""
+        interval that led here; updates at the end of each window, unless a sample of the window was not
+        ``informative`` (then the window is skipped, ``n_skipped_``). Returns the parameters to use now."""
         y = np.asarray(y, float).reshape(self.n_outputs)
         z = np.asarray(z, float).ravel()
         if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
@@ -134,9 +142,13 @@ class OnlineRPEM:
             self._phi.append(np.asarray(self._regressor(self._y[-1], z, zp), float))
         self._y.append(y)
         self._z_prev = z
+        self._informative = self._informative and bool(informative)
         if len(self._phi) >= self.window_steps:
-            self._update(z, zp)
-            self._y, self._phi = self._y[-1:], []
+            if self._informative:
+                self._update(z, zp)
+            else:
+                self.n_skipped_ += 1
+            self._y, self._phi, self._informative = self._y[-1:], [], bool(informative)
         return self.theta_
 
     def _update(self, z: np.ndarray, zp: np.ndarray) -> None:
@@ -184,4 +196,5 @@ class OnlineRPEM:
         d = np.abs(self.theta_[self.adapted_] - self.theta0[self.adapted_]) / np.maximum(
             np.abs(self.theta0[self.adapted_]), 1e-12)
         return {"adaptation_updates": float(self.n_updates_), "adaptation_rejected": float(self.n_rejected_),
+                "adaptation_skipped": float(self.n_skipped_),
                 "adaptation_fallbacks": float(self.n_fallbacks_), "adaptation_max_rel_change": float(d.max())}

@@ -239,6 +239,11 @@ def test_online_rpem_falls_back_to_the_identified_parameters(models: dict) -> No
     for _ in range(2000):
         ad.observe(rng.normal(scale=0.3, size=2), rng.normal(size=4))
     assert ad.n_fallbacks_ > 0
+    quiet = OnlineRPEM(model)               # windows with a sample below min_nox_ppm: skipped, nothing learnt
+    for _ in range(200):
+        quiet.observe(rng.normal(scale=0.3, size=2), rng.normal(size=4), informative=False)
+    assert quiet.n_skipped_ == 19 and quiet.n_updates_ == 0
+    np.testing.assert_array_equal(quiet.theta_, model.theta_)
 
 
 def test_adaptive_rpem_nmpc_runs_in_closed_loop(models: dict) -> None:
