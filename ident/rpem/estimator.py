@@ -36,7 +36,8 @@ R0_DEFAULT = 100.0
 #: from zero or from an EKF; with standardised signals (parameters of order one) and a data-driven start it lets the
 #: first samples of a pass, while the model state and its sensitivities are still in their start-up transient, throw
 #: a good start away (measured on the simulated cascaded tanks and on 2048 samples of the simulated Duffing
-#: oscillator: the passes then fell below their start; README "Choosing R0"). The grid spans the two decades above it.
+#: oscillator: the passes then fell below their start; README "The weight of the start"). The grid spans the two
+#: decades above it.
 R0_GRID = (1e3, 1e4, 1e5)
 #: Largest number of integration sub-steps per sample.
 MAX_SUBSTEPS = 50
