@@ -6,9 +6,11 @@ last 20 %); the validation record is used only to score the chosen model afterwa
 No per-system setting: every system gets the same search.
 
     python -m experiments.rpem_structure_search [--systems duffing_oscillator cascaded_tanks coupled_drives]
-        [--seeds 0 1 2 3 4] [--json PATH] [--quick]
+        [--seeds 0 1 2 3 4] [--json PATH] [--quick] [--hand-chosen]
 
-``--quick`` shortens the records and the grid (a smoke run, not a figure).
+``--quick`` shortens the records and the grid (a smoke run, not a figure). ``--hand-chosen`` fits the structures
+chosen by hand in tests/ident/test_rpem_auto.py (:data:`HAND_CHOSEN`) with AUTO_SETTINGS instead of searching, for
+the README's comparison.
 """
 from __future__ import annotations
 
@@ -23,15 +25,20 @@ from experiments._runs import run_folder, save_results
 from ident.benchmarks import simulated_benchmark
 from ident.benchmarks.simulated import SIMULATED_BENCHMARKS
 from ident.metrics import compare
-from ident.rpem import AUTO_SETTINGS, StructureSearch
+from ident.rpem import AUTO_SETTINGS, RecursivePEM, StructureSearch
 
 #: issue 21's validation FIT goals (percent)
 GOALS = {"duffing_oscillator": 95.0, "cascaded_tanks": 85.0, "coupled_drives": 70.0}
+#: the structures of tests/ident/test_rpem_auto.py (README "Simulated benchmark systems")
+HAND_CHOSEN = {"duffing_oscillator": {"n_states": 2, "total_degree": 3, "output": "identity"},
+               "cascaded_tanks": {"n_states": 2, "total_degree": 3, "output": "identity"},
+               "coupled_drives": {"n_states": 3, "total_degree": 1, "output": "abs"}}
 QUICK_LENGTHS = {"duffing_oscillator": (1200, 600), "cascaded_tanks": (400, 400), "coupled_drives": (600, 300)}
 
 
-def run_one(name: str, seed: int, quick: bool) -> dict[str, Any]:
-    """One search on one system and seed; the chosen structure, its hold-out and validation FIT."""
+def run_one(name: str, seed: int, quick: bool, hand: bool = False) -> dict[str, Any]:
+    """One search (or, with ``hand``, one fit of the hand-chosen structure) on one system and seed; the structure,
+    its hold-out and validation FIT."""
     lengths = {}
     if quick:
         lengths = dict(zip(("n_estimation", "n_validation"), QUICK_LENGTHS[name], strict=True))
@@ -43,15 +50,23 @@ def run_one(name: str, seed: int, quick: bool) -> dict[str, Any]:
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
-        search = StructureSearch(sampling_period=b.sampling_period, **kw).fit(b.estimation.u, b.estimation.y)
+        if hand:
+            c = HAND_CHOSEN[name]
+            est = RecursivePEM(**c, max_degrees=c["total_degree"], sampling_period=b.sampling_period,
+                               **kw.get("settings", AUTO_SETTINGS)).fit(b.estimation.u, b.estimation.y)
+            model, chosen, score = est, dict(c), est.holdout_fit_
+        else:
+            model = StructureSearch(sampling_period=b.sampling_period, **kw).fit(b.estimation.u, b.estimation.y)
+            est, chosen, score = model.best_estimator_, model.best_params_, model.best_score_
     seconds = time.perf_counter() - t0
-    fit = float(compare(search, b.validation.u, b.validation.y).fit)
-    est = search.best_estimator_
-    return {"system": name, "seed": seed, "chosen": search.best_params_, "holdout_fit": search.best_score_,
+    fit = float(compare(model, b.validation.u, b.validation.y).fit)
+    return {"system": name, "seed": seed, "chosen": chosen, "holdout_fit": score,
             "final_holdout_fit": est.holdout_fit_, "validation_fit": fit, "goal": GOALS.get(name),
-            "half_step_input": est.half_step_input_, "pass_mode": est.pass_mode_, "refit": bool(est.refit_),
-            "search_time_s": round(seconds, 1), "n_candidates": len(search.results_),
-            "warnings": sorted({str(w.message)[:160] for w in caught}), "table": search.table()}
+            "half_step_input": est.half_step_input_, "pass_mode": est.pass_mode_, "R0": est.R0_,
+            "refit": bool(est.refit_), "search_time_s": round(seconds, 1),
+            "n_candidates": 1 if hand else len(model.results_),
+            "warnings": sorted({str(w.message)[:160] for w in caught}),
+            "table": "hand-chosen structure" if hand else model.table()}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,18 +75,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     ap.add_argument("--json", help="write the results to this JSON file")
     ap.add_argument("--quick", action="store_true", help="short records and a small grid (smoke run)")
+    ap.add_argument("--hand-chosen", action="store_true", help="fit the hand-chosen structures instead of searching")
     args = ap.parse_args(argv)
     out = run_folder("rpem_structure_search", json_path=args.json)
     rows = []
     for name in args.systems:
         for seed in args.seeds:
-            row = run_one(name, seed, args.quick)
+            row = run_one(name, seed, args.quick, args.hand_chosen)
             rows.append(row)
             c = row["chosen"]
             print(f"{name:20s} seed {seed}: n={c['n_states']} deg={c['total_degree']} {c['output']:10s} "
                   f"hold-out {row['holdout_fit']:6.1f} %  validation {row['validation_fit']:6.1f} %  "
                   f"({row['search_time_s']:.0f} s){'  WARN' if row['warnings'] else ''}", flush=True)
-            save_results(out, "results.json", {"rows": rows, "quick": args.quick}, args.json)
+            save_results(out, "results.json", {"rows": rows, "quick": args.quick, "hand_chosen": args.hand_chosen},
+                         args.json)
     summary = {}
     for name in args.systems:
         fits = [r["validation_fit"] for r in rows if r["system"] == name]
@@ -79,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
                          "fits": fits, "goal": GOALS.get(name)}
         print(f"{name:20s} validation FIT mean {np.mean(fits):.1f} % (min {np.min(fits):.1f}, "
               f"max {np.max(fits):.1f}), goal {GOALS.get(name)} %")
-    save_results(out, "results.json", {"rows": rows, "summary": summary, "quick": args.quick}, args.json)
+    save_results(out, "results.json", {"rows": rows, "summary": summary, "quick": args.quick,
+                                       "hand_chosen": args.hand_chosen}, args.json)
     return 0 if all(np.isfinite(r["validation_fit"]) for r in rows) else 1
 
 

@@ -1,5 +1,5 @@
 """Recursive prediction error method (RPEM) on restricted black-box nonlinear ODE models (thesis Papers I-III)."""
-from ident.rpem.estimator import AUTO_SETTINGS, OUTPUT_FUNCTIONS, RecursivePEM
+from ident.rpem.estimator import AUTO_SETTINGS, OUTPUT_FUNCTIONS, R0_GRID, RecursivePEM
 from ident.rpem.parametric import ParametricRPEM
 from ident.rpem.regressors import (
     PAPER2_TERMS,
@@ -15,6 +15,7 @@ __all__ = [
     "AUTO_SETTINGS",
     "OUTPUT_FUNCTIONS",
     "PAPER2_TERMS",
+    "R0_GRID",
     "SCR_PAPER3_LINEAR_TERMS",
     "SCR_PAPER3_TERMS",
     "ParametricRPEM",

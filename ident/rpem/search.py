@@ -22,11 +22,12 @@ least as well). Every candidate is fitted with the same automatic settings (:dat
 
 Cost: stages 1 and 2 are *screening* fits: on records longer than ``screen_samples`` they use the first
 ``screen_samples`` samples, and at most ``screen_passes`` passes. The chosen structure is then fitted once more
-with the full settings on the whole estimation record (``best_estimator_``), which with ``refit=True`` (in
-:data:`AUTO_SETTINGS`) also re-runs its chosen recipe over the hold-out: the hold-out served to choose, and the
-final model uses every sample. With the default grid (3 orders x 4 output functions, then 2 degrees x 2 or 3 finalists:
-16 to 18 screening fits and one final fit) the search costs about 15 single fits on records up to ``screen_samples``
-samples; ``results_`` lists every fit with its time.
+with the full settings on the whole estimation record (``best_estimator_``; the screening's half-step input and pass
+mode carry over, while ``R0="auto"`` is chosen again: the weight the start deserves depends on the record's length),
+which with ``refit=True`` (in :data:`AUTO_SETTINGS`) also re-runs its chosen recipe over the hold-out: the hold-out
+served to choose, and the final model uses every sample. With the default grid (3 orders x 4 output functions,
+then 2 degrees x 2 or 3 finalists: 16 to 18 screening fits and one final fit) the search costs about 15 single fits
+on records up to ``screen_samples`` samples; ``results_`` lists every fit with its time.
 """
 from __future__ import annotations
 
@@ -298,7 +299,7 @@ class StructureSearch(BaseEstimator):
         if same:
             self.best_estimator_ = fitted[key]
         else:
-            chosen = fitted[key]  # its half-step input and pass mode carry over to the final fit
+            chosen = fitted[key]  # its half-step input and pass mode carry over to the final fit (R0 is chosen again)
             final = {**settings, "half_step_input": chosen.half_step_input_, "pass_mode": chosen.pass_mode_}
             est, score, note, secs = self._run(self._candidate(*key, final), u2, y2)
             # the final fit may go astray on the long record (a recursion that diverges over many more samples):

@@ -19,3 +19,14 @@ def test_smoke_run_writes_the_chosen_structures(tmp_path, monkeypatch):
     assert row["validation_fit"] == res["summary"]["coupled_drives"]["fits"][0]
     assert "hold-out FIT" in row["table"]
     assert list((tmp_path / "runs" / "rpem_structure_search").iterdir())
+
+
+def test_hand_chosen_structures_are_fitted_without_a_search(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "h.json"
+    args = ["--quick", "--hand-chosen", "--systems", "cascaded_tanks", "--seeds", "0", "--json", str(out)]
+    assert rss.main(args) == 0
+    res = json.loads(out.read_text())
+    (row,) = res["rows"]
+    assert res["hand_chosen"] is True and row["chosen"] == rss.HAND_CHOSEN["cascaded_tanks"]
+    assert row["n_candidates"] == 1 and row["R0"] > 0 and row["validation_fit"] > 50.0
