@@ -285,13 +285,18 @@ def test_lower_band_is_released_while_the_nh3_sensor_shows_slip(models: dict) ->
     model, info = load_for_control("hammerstein_wiener", models)
     policy = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, band_release_ppm=2.0, band_release_s=1.0)
     assert policy.anr_band[0] == 1.0
+    from control.blackbox import BAND_RELEASE_FILTER_S
+
     obs = np.zeros(6)
     assert policy._band_lo(obs) == 1.0
-    obs[5] = 5.0
+    obs[5] = 3.0 * (1 + 2 * BAND_RELEASE_FILTER_S)    # one reading: the filtered sensor (5 s) just above 2 ppm
     assert policy._band_lo(obs) == 0.0
-    obs[5] = 0.0
-    assert [policy._band_lo(obs) for _ in range(3)] == [0.0, 0.0, 1.0]    # 1 s = 2 steps after the slip
-    assert policy.stats()["band_released_steps"] == 3
+    obs[5] = 0.0     # the filter decays below 2 ppm in 5 steps (3 (10/11)^5 < 2), then 1 s = 2 steps
+    assert [policy._band_lo(obs) for _ in range(7)] == [0.0] * 6 + [1.0]
+    assert policy.stats()["band_released_steps"] == 7
+    noisy = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, band_release_ppm=2.0)
+    rng = np.random.default_rng(0)                    # the sensor's 1 ppm noise alone never releases the band
+    assert all(noisy._band_lo(np.r_[np.zeros(5), rng.normal()]) == 1.0 for _ in range(2000))
     never = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0)
     assert never._band_lo(np.r_[np.zeros(5), 50.0]) == 1.0
     with pytest.raises(ValueError, match="band_release_ppm"):
