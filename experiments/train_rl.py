@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from control.limit import annotate_gap_to_limit
 from control.rl.selection import (
     VALIDATION_DURATION_S,
     VALIDATION_SEEDS,
@@ -168,8 +169,9 @@ def main(argv: list[str] | None = None) -> dict:
         "training_timesteps": timesteps, "seed": policy.metadata.get("seed"),
         "training_wall_time_s": round(wall, 1), "evaluation_wall_time_s": round(eval_s, 1),
         "command": command, "eval_seeds": list(seeds), "run_folder": str(out), "policy": str(json_path),
-        "selection": selection or None, "cycles": {c: {"controllers": summary[c]} for c in cycles},
-    }
+        "selection": selection or None,   # gap_to_limit: to the stored clairvoyant limit at 10 ppm (issue 19)
+        "cycles": {c: {"limit_tailpipe_nox_g_per_kwh": annotate_gap_to_limit(summary[c], c),
+                       "controllers": summary[c]} for c in cycles}}
     if args.surrogate:
         from control.rl.surrogate import sim_to_real_gap
 
@@ -187,10 +189,10 @@ def main(argv: list[str] | None = None) -> dict:
     elif args.ship:
         report["shipped"] = str(install(json_path, POLICY_DIR, name, {}))
     save_results(out, "report.json", report, args.json)
-    for c in cycles:
-        for n, row in summary[c].items():
-            print(f"{c:5s} {n:22s} tailpipe {row['tailpipe_nox_g_per_kwh']:.3f} g/kWh  "
-                  f"slip mean {row['mean_nh3_slip_ppm']:.2f} ppm  peak {row['peak_nh3_slip_ppm']:.0f} ppm")
+    for c, n, row in ((cy, n, r) for cy in cycles for n, r in summary[cy].items()):
+        print(f"{c:5s} {n:22s} tailpipe {row['tailpipe_nox_g_per_kwh']:.3f} g/kWh  slip mean "
+              f"{row['mean_nh3_slip_ppm']:.2f} ppm  peak {row['peak_nh3_slip_ppm']:.0f} ppm  gap to limit "
+              + ("-" if row.get("gap_to_limit") is None else f"{row['gap_to_limit']:.2f}"))
     return report
 
 

@@ -42,6 +42,7 @@ from control.limit.common import (
 from control.limit.problem import CycleOptimum, pareto_front
 from control.limit.stored import (
     StaleLimitWarning,
+    annotate_gap_to_limit,
     controllers_against_limit,
     fingerprint_changes,
     limit_nox,
@@ -63,6 +64,7 @@ __all__ = [
     "CycleOptimum",
     "LimitResult",
     "StaleLimitWarning",
+    "annotate_gap_to_limit",
     "controllers_against_limit",
     "cycle_segment",
     "fingerprint_changes",

@@ -297,6 +297,21 @@ def limit_nox(cycle: str, budget_ppm: float = REFERENCE_BUDGET_PPM, path: str | 
     return nox if np.isfinite(nox) else None
 
 
+def annotate_gap_to_limit(controllers: Mapping[str, Any], cycle: str,
+                          budget_ppm: float = REFERENCE_BUDGET_PPM) -> float | None:
+    """Write ``gap_to_limit`` (:func:`gap_to_limit` from the ``lookup_table`` row to the stored limit of ``cycle`` at
+    ``budget_ppm``, :func:`limit_nox`) into every row of ``controllers`` (name -> KPI dict with
+    ``tailpipe_nox_g_per_kwh``); None in every row when the cycle has no stored limit or no look-up-table row.
+    Returns the limit's NOx [g/kWh] or None."""
+    lim = limit_nox(cycle, budget_ppm)
+    lut = (controllers.get("lookup_table") or {}).get("tailpipe_nox_g_per_kwh")
+    for row in controllers.values():
+        nox = row.get("tailpipe_nox_g_per_kwh")
+        ok = lim is not None and isinstance(lut, (int, float)) and isinstance(nox, (int, float)) and lut > lim
+        row["gap_to_limit"] = gap_to_limit(float(lut), float(nox), lim) if ok else None
+    return lim
+
+
 def write_limit_document(doc: Mapping[str, Any], path: str | os.PathLike) -> Path:
     """Write a limit document as JSON, atomically (:func:`scr_env.fileio.write_json`)."""
     from scr_env.fileio import write_json

@@ -341,3 +341,14 @@ def test_fingerprint_ignores_last_bits_and_sees_real_changes():
     assert changes(drive[:-1], params) == ["cycle"]
     assert changes(drive, params, chem="abd") == ["chemistry"]
     assert L.fingerprint_changes({**base, "version": 1}, base) == ["catalyst", "chemistry", "cycle"]
+
+
+def test_annotate_gap_to_limit_writes_every_row():
+    """The benchmarks' gap_to_limit: from the look-up-table row to the stored limit, in every row; None where the
+    cycle has no stored limit."""
+    rows = {"lookup_table": {"tailpipe_nox_g_per_kwh": 0.7}, "x": {"tailpipe_nox_g_per_kwh": 0.3}}
+    lim = L.annotate_gap_to_limit(rows, "whtc")
+    assert lim == pytest.approx(L.limit_nox("whtc")) and rows["lookup_table"]["gap_to_limit"] == 0.0
+    assert rows["x"]["gap_to_limit"] == pytest.approx((0.7 - 0.3) / (0.7 - lim))
+    none = {"lookup_table": {"tailpipe_nox_g_per_kwh": 0.7}}
+    assert L.annotate_gap_to_limit(none, "whtc_0-600s") is None and none["lookup_table"]["gap_to_limit"] is None
