@@ -243,7 +243,8 @@ class NonlinearMPC:
         stages, then 320 s of 20 s stages); None (default): ``horizon`` stages of ``stage_steps``. When given,
         ``horizon`` and ``stage_steps`` become ``len(stages)`` and ``stages[0]``. Uniform stages give the same NLP
         as ``horizon`` and ``stage_steps``. The model's ``stage_parameters`` is then given the stage lengths as an
-        array (a float for uniform stages).
+        array (a float for uniform stages). Kept as the attribute ``stage_layout`` (a subclass may keep a ``stages``
+        of its own: :class:`control.blackbox.BlackBoxMPC` builds its multi-rate NLP itself).
     weights : :class:`MPCWeights`.
     slip_limit_ppm : soft bound of the predicted tailpipe NH3 [ppm].
     max_rate_change_g_s2 : dosing rate limit [g/s per s].
@@ -283,7 +284,7 @@ class NonlinearMPC:
                  rescue_options: dict | None = None, rescue_hold_steps: int = 0,
                  stages: Any = None) -> None:
         self.model = model
-        self.stages = stages
+        self.stage_layout = stages
         if stages is not None and not isinstance(stages, (str, bytes)) and hasattr(stages, "__len__") \
                 and len(stages) > 0:
             horizon, stage_steps = len(stages), stages[0]
@@ -331,15 +332,15 @@ class NonlinearMPC:
 
     def _check_settings(self) -> None:
         """The settings (module docstring); ``ValueError`` naming the first bad one. Normalises the counts to int."""
-        if self.stages is not None:
-            st = self.stages
+        if self.stage_layout is not None:
+            st = self.stage_layout
             if isinstance(st, (str, bytes)) or not hasattr(st, "__len__") or len(st) == 0:
                 raise ValueError(f"stages must be a non-empty sequence of whole numbers >= 1 or None, got {st!r}")
-            self.stages = tuple(_check_count(k, "stages") for k in st)
-            if self.horizon != len(self.stages) or self.stage_steps != self.stages[0]:
-                raise ValueError(f"stages {self.stages!r} fix horizon = {len(self.stages)} and stage_steps = "
-                                 f"{self.stages[0]}, got horizon {self.horizon!r} and stage_steps "
-                                 f"{self.stage_steps!r} (set stages=None to use them)")
+            self.stage_layout = tuple(_check_count(k, "stages") for k in st)
+            if self.horizon != len(self.stage_layout) or self.stage_steps != self.stage_layout[0]:
+                raise ValueError(f"stages {self.stage_layout!r} fix horizon = {len(self.stage_layout)} and "
+                                 f"stage_steps = {self.stage_layout[0]}, got horizon {self.horizon!r} and "
+                                 f"stage_steps {self.stage_steps!r} (set stage_layout = None to use them)")
         self.horizon = _check_count(self.horizon, "horizon")
         self.stage_steps = _check_count(self.stage_steps, "stage_steps")
         _check_number(self.slip_limit_ppm, "slip_limit_ppm", positive=False, allow_inf=True)
@@ -419,8 +420,11 @@ class NonlinearMPC:
 
     # ------------------------------------------------------------------------------------------------- the NLP
     def stage_intervals(self) -> tuple[int, ...]:
-        """The control intervals of each stage: ``stages``, or ``horizon`` times ``stage_steps``."""
-        return tuple(self.stages) if self.stages is not None else (int(self.stage_steps),) * int(self.horizon)
+        """The control intervals of each stage: the multi-rate ``stages`` (attribute ``stage_layout``), or
+        ``horizon`` times ``stage_steps``."""
+        if self.stage_layout is not None:
+            return tuple(self.stage_layout)
+        return (int(self.stage_steps),) * int(self.horizon)
 
     def _stage_lengths(self) -> float | np.ndarray:
         """The stage lengths [s] given to the model's ``stage_parameters``: one float when the stages are uniform
