@@ -15,6 +15,7 @@ never on the held-out WHTC/WHSC; their history is in each constant's comment.
 """
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -86,7 +87,10 @@ SLIP_GUARD_PPM = EURO_VI_NH3_SLIP_LIMIT_PPM
 #:   200: 0.404 at 4.59 (0)  <- chosen;  300: 0.279 at 8.37 (0);  400: 0.229 at 14.9 (1);  500: 0.186 at 18.9 (0);
 #:   600: 0.164 at 64.0 (0).  On this plant 50 ppm (the old choice) stores almost nothing (cycle 5, 600 s: 0.627
 #: g/kWh at 0.01 ppm against 0.193 at 1.13 for 200). 200-300 was not refined (time); cycle 5 reaches 8.37 at 300.
-ORACLE_SAFE_SLIP_PPM = 200.0
+#: Issue 19: the oracle now prices slip per ppm s over multi-rate stages that see minutes ahead (below), and the
+#: safe-coverage penalty is dropped (inf): it held the oracle far inside the 10 ppm budget (hot WHTC 0.264 g/kWh at
+#: 0.7 ppm). The values above are the history of the single-rate oracle. Finite values still select it.
+ORACLE_SAFE_SLIP_PPM = math.inf
 #: the oracle NMPC's terminal value of stored NH3 [g AdBlue equivalent per mol] (control.models.FirstPrinciplesModel),
 #: chosen on the plant with the NO2 chemistry by ``python -m experiments.calibrate_controllers --controller
 #: oracle_storage --values 50 100 200 300 400 600 800 1200 --seeds 5 6 7 8 --duration 900`` (three runs; random cycles
@@ -94,7 +98,10 @@ ORACLE_SAFE_SLIP_PPM = 200.0
 #: failed solves). Mean NOx [g/kWh] at worst mean slip [ppm], 0 failed solves of 7200 for every value:
 #:   50: 1.007 at 0.96;  100: 0.441 at 2.12;  200 (the earlier value): 0.404 at 4.59;  300: 0.382 at 4.97;
 #:   400: 0.319 at 5.47;  600: 0.313 at 6.12  <- chosen;  800: 0.305 at 8.24;  1200: 0.256 at 12.0.
-ORACLE_STORAGE_VALUE_G_PER_MOL = 600.0
+#: Issue 19 (multi-rate stages, slip price 1e-3, no safe coverage), on calibration cycle 5 (600 s) with
+#: ``/tmp``-prototype runs of the same NLP: 600 g/mol 0.104 g/kWh at 1.68 ppm, 200 g/mol 0.095 at 2.64 ppm <- chosen
+#: (with a price per ppm s the terminal value only has to keep the store from being emptied at the horizon's end).
+ORACLE_STORAGE_VALUE_G_PER_MOL = 200.0
 #: the oracle NMPC's IPOPT options (on top of NonlinearMPC's defaults: warm start, mu_init 1e-3, 60 iterations).
 #: Its failed solves on the calibration cycles are iteration limits (diagnosed on random cycles 5 and 8): the
 #: monotone barrier strategy warm-started at a small barrier parameter stalls after a change of the active set, and
@@ -107,7 +114,33 @@ ORACLE_STORAGE_VALUE_G_PER_MOL = 600.0
 #: solve time stays ~10 ms, the hard solves take what they need (up to 300 iterations).
 #: On the plant with NO2 chemistry the same options failed 1 of 36000 solves over the safe-slip grid above (median
 #: 16-19 ms, worst p95 179 ms under load): kept unchanged.
-ORACLE_SOLVER_OPTIONS: dict[str, Any] = {"ipopt.mu_strategy": "adaptive", "ipopt.max_iter": 300}
+#: Issue 19 (multi-rate stages): the adaptive strategy first took a median 197 ms and 48 iterations per solve
+#: (calibration cycle 5, 600 s; 1 failed solve), the monotone one 130 ms and 22 iterations (0 failed) <- chosen,
+#: with the adaptive strategy with 300 iterations as the rescue of a failed solve (ORACLE_RESCUE_OPTIONS).
+ORACLE_SOLVER_OPTIONS: dict[str, Any] = {"ipopt.mu_strategy": "monotone", "ipopt.max_iter": 300}
+ORACLE_RESCUE_OPTIONS: dict[str, Any] = {"ipopt.mu_strategy": "adaptive", "ipopt.max_iter": 300}
+#: the oracle NMPC's multi-rate stages [control intervals of 0.5 s]: ORACLE_FINE_STAGES stages of 2 s (the dose
+#: now, the NOx of the next seconds), then ORACLE_COARSE_STAGES stages of 30 s, so the plan sees the heat-ups of the
+#: next minutes (the solid temperatures lag the exhaust by minutes: on calibration cycle 5 a 40 s horizon filled
+#: the store at 500 K before a five-minute heat-up to 626 K that then slipped 180 ppm). Layouts compared on
+#: calibration cycles 5 and 8 (600 s, NOx g/kWh at mean slip ppm, median solve): 10x2 s + 12x30 s 0.095 at 2.64 and
+#: 0.100 at 4.27 (130 / 95 ms); 6x2 s + 8x40 s 0.099 at 2.34 and 0.117 at 3.90 (73 / 53 ms); geometric 2-64 s
+#: 0.104 at 1.75 and 0.101 at 3.57 (72 / 55 ms). The number of 30 s stages by ``python -m
+#: experiments.calibrate_controllers --controller oracle_horizon --values 4 8 12 16 --seeds 5 6 7 8 --duration 900``
+#: (slip price 1e-3): mean NOx 0.1476 at worst slip 5.23 ppm (median 50 ms) <- chosen; 8: 0.1490 at 4.78 (70 ms);
+#: 12: 0.1526 at 4.58 (93 ms); 16: 0.1547 at 4.43 (106 ms); 0 failed solves of 7200 for every value.
+ORACLE_FINE_STAGES = 10
+ORACLE_COARSE_STAGES = 4
+ORACLE_COARSE_STAGE_STEPS = 60
+#: the oracle NMPC's price of NH3 slip [g AdBlue equivalent per ppm s of tailpipe NH3], time-weighted as the
+#: mean-slip KPI counts it (MPCWeights.nh3_ppm_s; the mass-based NH3 weight is 0): the Lagrange multiplier of the
+#: mean-slip budget, so that the oracle spends the budget where it buys the most NOx. Chosen by ``python -m
+#: experiments.calibrate_controllers --controller oracle_slip_price --values 2e-4 4e-4 6e-4 --seeds 5 6 7 8
+#: --duration 900`` (the rule of the module: lowest mean NOx with worst mean slip <= 8 ppm, < 1 % failed solves).
+#: Mean NOx [g/kWh] at worst mean slip [ppm], 0 failed solves of 7200 each, median solve 44-48 ms:
+#:   2e-4: 0.1404 at 8.35 (over);  4e-4: 0.1430 at 6.93  <- chosen;  6e-4: 0.1448 at 6.34;  (1e-3: 0.1476 at 5.23).
+#: The single-rate oracle it replaces: 0.313 at 6.12 on the same cycles.
+ORACLE_SLIP_PRICE_PER_PPM_S = 4.0e-4
 #: names of the identified-model NMPC and its benchmarked variants (see IDENTIFIED_STORAGE_VALUE)
 IDENTIFIED_VARIANTS = ("mpc_identified", "mpc_identified_nox_sensor", "mpc_identified_no_preview")
 #: every controller :func:`make_controller` builds without a shipped policy file
@@ -265,21 +298,40 @@ def black_box_mpc(model: Any, input_mean: Any, input_scale: Any, output_mean: An
     return NonlinearMPC(adapter, horizon=10 if quick else 20, stage_steps=4, preview=False, **IDENT_SOLVER)
 
 
-def oracle_mpc(quick: bool = False, safe_slip_ppm: float | None = None,
-               storage_value_g_per_mol: float | None = None) -> Any:
-    """NMPC on the first-principles catalyst (privileged state, cycle preview), safe coverage at
-    ``safe_slip_ppm`` (default :data:`ORACLE_SAFE_SLIP_PPM`), terminal value of stored NH3
-    ``storage_value_g_per_mol`` (default :data:`ORACLE_STORAGE_VALUE_G_PER_MOL`). ``quick``: horizon 10 stages
-    instead of 20."""
-    from control.models import FirstPrinciplesModel
-    from control.mpc import NonlinearMPC
+def oracle_stages(coarse_stages: int | None = None, quick: bool = False) -> tuple[int, ...]:
+    """The oracle's multi-rate stages [control intervals]: :data:`ORACLE_FINE_STAGES` of 4, then ``coarse_stages``
+    (default :data:`ORACLE_COARSE_STAGES`) of :data:`ORACLE_COARSE_STAGE_STEPS`; ``quick``: half of each."""
+    n_coarse = ORACLE_COARSE_STAGES if coarse_stages is None else int(coarse_stages)
+    if n_coarse < 0:
+        raise ValueError(f"coarse_stages must be a whole number >= 0, got {coarse_stages!r}")
+    n_fine = ORACLE_FINE_STAGES
+    if quick:
+        n_fine, n_coarse = max(n_fine // 2, 1), n_coarse // 2
+    return (4,) * n_fine + (ORACLE_COARSE_STAGE_STEPS,) * n_coarse
 
+
+def oracle_mpc(quick: bool = False, safe_slip_ppm: float | None = None,
+               storage_value_g_per_mol: float | None = None, slip_price_per_ppm_s: float | None = None,
+               coarse_stages: int | None = None) -> Any:
+    """NMPC on the first-principles catalyst (privileged state, cycle preview) over the multi-rate stages of
+    :func:`oracle_stages` (``coarse_stages`` coarse ones, default :data:`ORACLE_COARSE_STAGES`), slip priced at
+    ``slip_price_per_ppm_s`` per ppm s (default :data:`ORACLE_SLIP_PRICE_PER_PPM_S`; no per-stage slip bound),
+    terminal value of stored NH3 ``storage_value_g_per_mol`` (default :data:`ORACLE_STORAGE_VALUE_G_PER_MOL`) and,
+    when ``safe_slip_ppm`` (default :data:`ORACLE_SAFE_SLIP_PPM`) is finite, the terminal penalty on coverage above
+    the safe coverage at that desorption slip. ``quick``: half the stages."""
+    from control.models import FirstPrinciplesModel
+    from control.mpc import MPCWeights, NonlinearMPC
+
+    safe = ORACLE_SAFE_SLIP_PPM if safe_slip_ppm is None else float(safe_slip_ppm)
+    price = ORACLE_SLIP_PRICE_PER_PPM_S if slip_price_per_ppm_s is None else float(slip_price_per_ppm_s)
     model = FirstPrinciplesModel(
-        safe_slip_ppm=ORACLE_SAFE_SLIP_PPM if safe_slip_ppm is None else safe_slip_ppm,
+        safe_slip_ppm=safe if math.isfinite(safe) else 200.0, cap_weight=2.0e4 if math.isfinite(safe) else 0.0,
         storage_value_g_per_mol=(ORACLE_STORAGE_VALUE_G_PER_MOL if storage_value_g_per_mol is None
                                  else storage_value_g_per_mol))
-    return NonlinearMPC(model, horizon=10 if quick else 20, stage_steps=4, preview=True,
-                        solver_options=dict(ORACLE_SOLVER_OPTIONS))
+    return NonlinearMPC(model, stages=oracle_stages(coarse_stages, quick), preview=True,
+                        weights=MPCWeights(nh3=0.0, nh3_ppm_s=price), slip_limit_ppm=math.inf,
+                        solver_options=dict(ORACLE_SOLVER_OPTIONS), rescue_solver="ipopt",
+                        rescue_options=dict(ORACLE_RESCUE_OPTIONS))
 
 
 # ------------------------------------------------------------------------------------------------ by name

@@ -190,9 +190,17 @@ class FirstPrinciplesModel:
         dose = self.dosing or DosingParams()
         sites = p[P["sites_per_cell_mol"]]
         H, n = disturbances.shape[0], self.n_cells
-        n_sub = max(round(h / dt), 1)
-        # stage temperatures: the held stage disturbance over n_sub intervals of dt (end of each stage)
-        temps = self._temperatures(temps0, np.repeat(disturbances, n_sub, axis=0), dt)[n_sub - 1::n_sub]
+        if np.ndim(h) == 0:   # uniform stages of h seconds
+            n_sub = max(round(h / dt), 1)
+            # stage temperatures: the held stage disturbance over n_sub intervals of dt (end of each stage)
+            temps = self._temperatures(temps0, np.repeat(disturbances, n_sub, axis=0), dt)[n_sub - 1::n_sub]
+            n_total = H * n_sub
+        else:                 # multi-rate stages: each stage's own number of intervals
+            subs = np.maximum(np.rint(np.asarray(h, dtype=np.float64) / dt).astype(np.int64), 1)
+            if subs.shape != (H,):
+                raise ValueError(f"h must be a stage length or one per stage ({H}), got shape {np.shape(h)}")
+            temps = self._temperatures(temps0, np.repeat(disturbances, subs, axis=0), dt)[np.cumsum(subs) - 1]
+            n_total = int(subs.sum())
         flow, t_in, nox, no2f = disturbances.T
         pst = np.empty((H, self.n_stage_params))
         # the plant's inlet gas (scr_env.physics.dosing) for 1 g/s of AdBlue: y_nh3 is linear in the dose, which the
@@ -202,9 +210,9 @@ class FirstPrinciplesModel:
         pst[:, 4:] = self._constants(temps.ravel()).reshape(H, n * _N_K)
         t_hot = np.maximum(temps.max(axis=0), temps0)
         # hottest temperature further ahead, from the cycle preview (privileged) if the model is given one
-        n_far = int(self.lookahead_s / dt) - H * n_sub
+        n_far = int(self.lookahead_s / dt) - n_total
         if n_far > 0 and self.use_preview:
-            far = env.disturbance_preview(H * n_sub + n_far)[H * n_sub:]
+            far = env.disturbance_preview(n_total + n_far)[n_total:]
             t_far = self._temperatures(temps[-1], far, dt)
             t_hot = np.maximum(t_hot, t_far.max(axis=0))
         flow_ref = float(np.mean(flow))

@@ -1,17 +1,21 @@
 """Nonlinear MPC of AdBlue dosing with CasADi: one NLP, built once, for any prediction model.
 
 The optimal control problem over ``horizon`` stages of ``stage_steps`` control intervals each (stage length
-``h = stage_steps * dt``; the first input is applied for one interval, then the problem is solved again):
+``h = stage_steps * dt``; the first input is applied for one interval, then the problem is solved again), or over
+multi-rate ``stages`` (control intervals of each stage, e.g. 10 stages of 4 then 8 of 40: fine stages now, coarse
+ones that see minutes ahead at the same NLP size; stage i lasts ``h_i = stages[i] * dt``):
 
-    min   sum_i [ h F_i (w_nox M_NO2 y_nox,i + w_nh3 M_NH3 y_nh3,i) 1e-6 + w_adblue h u_i + w_du (u_i - u_i-1)^2
-                  + w_slack (s_i + s_i^2) ] + V(x_H)
+    min   sum_i [ h_i F_i ((w_nox M_NO2 y_nox,i + w_nh3 M_NH3 y_nh3,i) 1e-6) + w_nh3_ppm_s h_i y_nh3,i
+                  + w_adblue h_i u_i + w_du (u_i - u_i-1)^2 + w_slack (h_i / h_0) (s_i + s_i^2) ] + V(x_H)
     s.t.  r(x_i+1, x_i, u_i, d_i, p_i) = 0                 (the model, multiple shooting / implicit collocation)
-          0 <= u_i <= u_max,  |u_i - u_i-1| <= du_max h     (injector range, rate limit; u_-1 the applied dose)
+          0 <= u_i <= u_max,  |u_i - u_i-1| <= du_max h_i   (injector range, rate limit; u_-1 the applied dose,
+                                                             over one control interval for the first stage)
           y_nh3,i <= slip_limit_ppm + s_i,  s_i >= 0        (soft NH3-slip constraint)
 
 with u the AdBlue rate [g/s], F the exhaust flow [mol/s], y the predicted tailpipe NOx and NH3 [ppm], d the
 engine-out disturbance (flow, inlet temperature, NOx, NO2 fraction) and p model-specific stage parameters. The
-default weights are the environment's economic reward (20 per g NOx, 60 per g NH3, 1 per g AdBlue). The
+default weights are the environment's economic reward (20 per g NOx, 60 per g NH3, 1 per g AdBlue; the
+time-weighted slip price ``w_nh3_ppm_s``, per ppm s of tailpipe NH3 as the mean-slip KPI counts it, is 0). The
 disturbance is held at its measured value over the horizon unless ``preview=True`` (then the cycle preview from
 ``env.disturbance_preview``, privileged information, given through :meth:`NonlinearMPC.attach`).
 
@@ -38,7 +42,8 @@ solve is logged at debug level on the ``control.mpc`` logger (``logging.getLogge
 kind and solver status, and kept in :attr:`NonlinearMPC.failures_` for the episode.
 
 Settings are checked when the controller is built (and again when its NLP is built, for attributes changed
-later): ``horizon`` and ``stage_steps`` whole numbers >= 1, ``slip_limit_ppm`` >= 0 (inf: no slip bound),
+later): ``horizon`` and ``stage_steps`` whole numbers >= 1 (``stages``, when given, a non-empty sequence of them,
+and then ``horizon == len(stages)``, ``stage_steps == stages[0]``), ``slip_limit_ppm`` >= 0 (inf: no slip bound),
 ``max_rate_change_g_s2`` > 0 (inf: no rate limit), :class:`MPCWeights` finite and >= 0, ``fallback`` a policy;
 a bad one raises ``ValueError`` naming it.
 
@@ -166,6 +171,10 @@ class MPCWeights:
     adblue: float = 1.0  # per g AdBlue
     rate_change: float = 0.05  # per (g/s)^2 of dose change between stages
     slack: float = 50.0  # per ppm of slip above the limit (plus its square), per stage
+    #: per ppm s of predicted tailpipe NH3, time-weighted as the mean-slip KPI counts it (not by mass: the KPI's
+    #: mean slip [ppm] is a time average, so a ppm at low exhaust flow uses as much of the budget as one at high
+    #: flow); 0 (the default) adds nothing to the objective
+    nh3_ppm_s: float = 0.0
 
     def __post_init__(self) -> None:
         """Every weight a finite number >= 0 (``ValueError`` naming it): a negative AdBlue weight would pay the
@@ -202,7 +211,8 @@ class PredictionModel(Protocol):
     def stage_parameters(self, observation: np.ndarray, disturbances: np.ndarray, h: float,
                          dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Numeric (stage parameters (H, n_stage_params), terminal parameters (n_terminal_params,)) for this step,
-        from the observation and the (H, 4) stage disturbances; stages of ``h`` seconds, control interval ``dt``."""
+        from the observation and the (H, 4) stage disturbances; stages of ``h`` seconds (a float; an (H,) array of
+        each stage's length for multi-rate stages), control interval ``dt``."""
 
     def make_estimator(self) -> StateEstimator:
         """The model's default state estimator (used when the controller is given none)."""
@@ -229,6 +239,12 @@ class NonlinearMPC:
         :class:`control.models.IdentifiedModelAdapter`).
     horizon : number of stages.
     stage_steps : control intervals per stage.
+    stages : multi-rate stages, the control intervals of each stage (e.g. ``(4,) * 10 + (40,) * 8``: 20 s of 2 s
+        stages, then 320 s of 20 s stages); None (default): ``horizon`` stages of ``stage_steps``. When given,
+        ``horizon`` and ``stage_steps`` become ``len(stages)`` and ``stages[0]``. Uniform stages give the same NLP
+        as ``horizon`` and ``stage_steps``. The model's ``stage_parameters`` is then given the stage lengths as an
+        array (a float for uniform stages). Kept as the attribute ``stage_layout`` (a subclass may keep a ``stages``
+        of its own: :class:`control.blackbox.BlackBoxMPC` builds its multi-rate NLP itself).
     weights : :class:`MPCWeights`.
     slip_limit_ppm : soft bound of the predicted tailpipe NH3 [ppm].
     max_rate_change_g_s2 : dosing rate limit [g/s per s].
@@ -265,8 +281,13 @@ class NonlinearMPC:
                  solver: str = "ipopt", solver_options: dict | None = None,
                  warm_start_duals: bool | None = None, slip_guard: tuple[int, float] | None = None,
                  estimator: StateEstimator | None = None, rescue_solver: str | None = None,
-                 rescue_options: dict | None = None, rescue_hold_steps: int = 0) -> None:
+                 rescue_options: dict | None = None, rescue_hold_steps: int = 0,
+                 stages: Any = None) -> None:
         self.model = model
+        self.stage_layout = stages
+        if stages is not None and not isinstance(stages, (str, bytes)) and hasattr(stages, "__len__") \
+                and len(stages) > 0:
+            horizon, stage_steps = len(stages), stages[0]
         self.horizon = horizon
         self.stage_steps = stage_steps
         self.weights = weights
@@ -311,6 +332,15 @@ class NonlinearMPC:
 
     def _check_settings(self) -> None:
         """The settings (module docstring); ``ValueError`` naming the first bad one. Normalises the counts to int."""
+        if self.stage_layout is not None:
+            st = self.stage_layout
+            if isinstance(st, (str, bytes)) or not hasattr(st, "__len__") or len(st) == 0:
+                raise ValueError(f"stages must be a non-empty sequence of whole numbers >= 1 or None, got {st!r}")
+            self.stage_layout = tuple(_check_count(k, "stages") for k in st)
+            if self.horizon != len(self.stage_layout) or self.stage_steps != self.stage_layout[0]:
+                raise ValueError(f"stages {self.stage_layout!r} fix horizon = {len(self.stage_layout)} and "
+                                 f"stage_steps = {self.stage_layout[0]}, got horizon {self.horizon!r} and "
+                                 f"stage_steps {self.stage_steps!r} (set stage_layout = None to use them)")
         self.horizon = _check_count(self.horizon, "horizon")
         self.stage_steps = _check_count(self.stage_steps, "stage_steps")
         _check_number(self.slip_limit_ppm, "slip_limit_ppm", positive=False, allow_inf=True)
@@ -389,11 +419,26 @@ class NonlinearMPC:
         self.rescues_: list[tuple[int, str, str]] = []
 
     # ------------------------------------------------------------------------------------------------- the NLP
+    def stage_intervals(self) -> tuple[int, ...]:
+        """The control intervals of each stage: the multi-rate ``stages`` (attribute ``stage_layout``), or
+        ``horizon`` times ``stage_steps``."""
+        if self.stage_layout is not None:
+            return tuple(self.stage_layout)
+        return (int(self.stage_steps),) * int(self.horizon)
+
+    def _stage_lengths(self) -> float | np.ndarray:
+        """The stage lengths [s] given to the model's ``stage_parameters``: one float when the stages are uniform
+        (as before multi-rate stages existed), else an (H,) array."""
+        ks = self.stage_intervals()
+        if len(set(ks)) == 1:
+            return ks[0] * self.dt
+        return np.asarray(ks, dtype=np.float64) * self.dt
+
     def _build(self) -> None:
         self._check_settings()
         m, H = self.model, int(self.horizon)
         w = self.weights or MPCWeights()
-        h = self.stage_steps * self.dt
+        ks = self.stage_intervals()
         nx = m.nx
         X = ca.SX.sym("X", nx, H)  # states at the ends of the stages
         U = ca.SX.sym("U", H)
@@ -407,8 +452,9 @@ class NonlinearMPC:
         cost = 0
         x = x0
         du_first = self.max_rate_change_g_s2 * self.dt
-        du_max = self.max_rate_change_g_s2 * h
         for i in range(H):
+            h = ks[i] * self.dt
+            du_max = self.max_rate_change_g_s2 * h
             xn = X[:, i]
             d, p = D[:, i], Pst[:, i]
             g.append(m.residual(xn, x, U[i], d, p, h))
@@ -425,7 +471,11 @@ class NonlinearMPC:
             ubg.append(lim)
             flow = d[0]
             cost += h * flow * 1e-6 * (w.nox * NO2_MOLAR_MASS_G_MOL * y[0] + w.nh3 * NH3_MOLAR_MASS_G_MOL * y[1])
-            cost += w.adblue * h * U[i] + w.rate_change * du ** 2 + w.slack * (S[i] + S[i] ** 2)
+            if w.nh3_ppm_s > 0:
+                cost += w.nh3_ppm_s * h * y[1]
+            # the slack is per stage of the first stage's length: a longer stage weighs it by its length
+            slack_w = w.slack if ks[i] == ks[0] else w.slack * (ks[i] / ks[0])
+            cost += w.adblue * h * U[i] + w.rate_change * du ** 2 + slack_w * (S[i] + S[i] ** 2)
             x = xn
         cost += m.terminal_cost(x, Pt)
         xlb, xub = m.state_bounds()
@@ -446,11 +496,16 @@ class NonlinearMPC:
 
     # ------------------------------------------------------------------------------------------------- acting
     def _disturbances(self, observation: np.ndarray) -> np.ndarray:
-        """(H, 4) stage disturbances: block means of the preview, or the measurement held."""
+        """(H, 4) stage disturbances: block means of the preview over each stage, or the measurement held."""
         H, k = int(self.horizon), self.stage_steps
         if self._env is not None:
-            prev = self._env.disturbance_preview(H * k)
-            return prev.reshape(H, k, N_DISTURBANCE).mean(axis=1)
+            ks = self.stage_intervals()
+            if len(set(ks)) == 1:
+                prev = self._env.disturbance_preview(H * k)
+                return prev.reshape(H, k, N_DISTURBANCE).mean(axis=1)
+            prev = self._env.disturbance_preview(int(sum(ks)))
+            edges = np.concatenate([[0], np.cumsum(ks)])
+            return np.array([prev[edges[i]:edges[i + 1]].mean(axis=0) for i in range(H)])
         no2f = 0.4  # the NO2 share is not measured: a typical value downstream of the DOC [chosen]
         return np.tile([observation[2], observation[1], observation[0], no2f], (H, 1))
 
@@ -513,7 +568,7 @@ class NonlinearMPC:
             logger.debug("NonlinearMPC step %d: failed solve (%s: %s)", self._step, kind, status)
             self._plan_age += 1
             plan = self.last_plan_
-            i = self._plan_age // self.stage_steps
+            i = int(np.searchsorted(np.cumsum(self.stage_intervals()), self._plan_age, side="right"))
             if self.slip_guard is not None and float(obs[self.slip_guard[0]]) > self.slip_guard[1]:
                 rate = 0.0   # the catalyst slips: a failed solve doses nothing (see slip_guard)
                 self._guarded += 1
@@ -542,7 +597,7 @@ class NonlinearMPC:
 
     def _solve(self, obs: np.ndarray) -> float | None:
         H, nx = self._H, self._nx
-        h = self.stage_steps * self.dt
+        h = self._stage_lengths()
         dist = self._disturbances(obs)
         try:
             x0 = self.estimator.make_step(obs, self._u_prev, dist[0])

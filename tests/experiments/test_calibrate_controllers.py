@@ -28,7 +28,17 @@ def test_unknown_controller_is_named():
     with pytest.raises(ValueError, match="controller"):
         _controller("lqr", 1.0, None)
     assert set(KNOBS) == {"identified", "identified_preview", "identified_nh3", "oracle", "oracle_storage",
-                          "lookup_table"}
+                          "oracle_slip_price", "oracle_horizon", "lookup_table"}
+
+
+def test_oracle_knobs_build_the_oracle_they_name():
+    from control.factory import ORACLE_COARSE_STAGE_STEPS, ORACLE_FINE_STAGES
+
+    oracle = _controller("oracle_horizon", 2.0, None)
+    assert oracle.stage_intervals() == (4,) * ORACLE_FINE_STAGES + (ORACLE_COARSE_STAGE_STEPS,) * 2
+    assert _controller("oracle_slip_price", 2e-4, None).weights.nh3_ppm_s == pytest.approx(2e-4)
+    with pytest.raises(ValueError, match="whole numbers"):
+        _controller("oracle_horizon", 2.5, None)
 
 
 def test_identification_cycles_must_not_be_calibration_cycles(capsys):
