@@ -12,8 +12,8 @@ with privileged state and the cycle preview), and the shipped RL policies ``ppo`
 provides them (skipped otherwise, and said so). Writes the KPI table, a JSON {"cycles": {cycle: {"controllers": {name:
 KPIs and timings}}}} and plots of the closed-loop trajectories to ``runs/control_benchmark/<stamp>/``. Each row has
 ``gap_closed`` (the fraction of the look-up-table-to-oracle tailpipe NOx gap it closes) and ``gap_to_limit`` (the
-fraction of the gap to the clairvoyant limit at 10 ppm, read from the stored limit by :func:`stored_limit_nox`; None
-until ``control.limit.stored_limit`` exists); each NMPC's row has ``solves``, ``solver_failures`` and
+fraction of the gap to the clairvoyant limit at 10 ppm, read from the stored limit by
+:func:`control.limit.annotate_gap_to_limit`; None when no limit is stored for the cycle); each NMPC's row has ``solves``, ``solver_failures`` and
 ``solver_failure_kinds`` (kind -> count, :data:`control.mpc.FAILURE_KINDS`), ``solver_rescued``, solve times.
 ``--quick``: the WHTC only, shorter oracle horizon. ``--seeds``: the reset seeds (sensor noise) of every episode
 (default 0); with several, each controller's figures are their means and ``per_seed`` lists NOx, slip and failed
@@ -89,41 +89,17 @@ def _controllers(results: list[EpisodeResult], cycle: str, seeds: list[int]) -> 
     return ctrl
 
 
-def stored_limit_nox(cycle: str, budget_ppm: float = LIMIT_BUDGET_PPM) -> float | None:
-    """Issue 19 part 3: the clairvoyant limit's tailpipe NOx [g/kWh] on ``cycle`` at ``budget_ppm``, the replayed
-    optimum of ``control.limit.stored_limit(cycle, budget_ppm)`` (stored in the repository, never re-solved); None
-    without that API, without a stored result for the cycle and budget, or with one solved for another plant
-    (``StaleLimitWarning``): then ``gap_to_limit`` is None."""
-    import warnings
-
-    try:
-        from control.limit import stored_limit  # type: ignore[attr-defined]
-    except ImportError:
-        return None
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            rec = stored_limit(cycle, budget_ppm)
-    except (FileNotFoundError, ValueError):
-        return None
-    if rec is None or any(w.category.__name__ == "StaleLimitWarning" for w in caught):
-        return None
-    nox = rec.get("replay_tailpipe_nox_g_per_kwh", rec.get("tailpipe_nox_g_per_kwh")) if isinstance(rec, dict) \
-        else getattr(rec, "replay_tailpipe_nox_g_per_kwh", None)
-    return None if nox is None or not np.isfinite(nox) else float(nox)
-
-
 def _gaps(ctrl: dict[str, Any], cycle: str) -> dict[str, Any]:
     """``gap_closed`` (look-up table to oracle) and ``gap_to_limit`` (look-up table to the stored clairvoyant limit at
     :data:`LIMIT_BUDGET_PPM`) of every controller, written into its row; the cycle's summary entries."""
+    from control.limit import annotate_gap_to_limit
+
     lut = ctrl.get("lookup_table", {}).get("tailpipe_nox_g_per_kwh")
     orc = ctrl.get("mpc_oracle", {}).get("tailpipe_nox_g_per_kwh")
-    limit = stored_limit_nox(cycle)
     for row in ctrl.values():
         tp = row["tailpipe_nox_g_per_kwh"]
         row["gap_closed"] = (lut - tp) / (lut - orc) if lut is not None and orc is not None and lut > orc else None
-        row["gap_to_limit"] = (lut - tp) / (lut - limit) if lut is not None and limit is not None and lut > limit \
-            else None
+    limit = annotate_gap_to_limit(ctrl, cycle, LIMIT_BUDGET_PPM)
     out: dict[str, Any] = {"limit_tailpipe_nox_g_per_kwh": limit, "limit_budget_ppm": LIMIT_BUDGET_PPM}
     if "mpc_identified" in ctrl:
         out["gap_closed_by_mpc_identified"] = ctrl["mpc_identified"]["gap_closed"]
