@@ -13,8 +13,9 @@ provides them (skipped otherwise, and said so). Writes the KPI table, a JSON {"c
 KPIs and timings}}}} and plots of the closed-loop trajectories to ``runs/control_benchmark/<stamp>/``. Each row has
 ``gap_closed`` (the fraction of the look-up-table-to-oracle tailpipe NOx gap it closes) and ``gap_to_limit`` (the
 fraction of the gap to the clairvoyant limit at 10 ppm, read from the stored limit by
-:func:`control.limit.annotate_gap_to_limit`; None when no limit is stored for the cycle); each NMPC's row has ``solves``, ``solver_failures`` and
-``solver_failure_kinds`` (kind -> count, :data:`control.mpc.FAILURE_KINDS`), ``solver_rescued``, solve times.
+:func:`control.limit.annotate_gap_to_limit`; None when no limit is stored for the cycle); each NMPC's row has
+``solves``, ``solver_failures`` and ``solver_failure_kinds`` (kind -> count, :data:`control.mpc.FAILURE_KINDS`),
+``solver_rescued``, solve times.
 ``--quick``: the WHTC only, shorter oracle horizon. ``--seeds``: the reset seeds (sensor noise) of every episode
 (default 0); with several, each controller's figures are their means and ``per_seed`` lists NOx, slip and failed
 solves per seed (the plots show the first seed).
