@@ -23,8 +23,8 @@ import numpy as np
 
 from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM
 
-__all__ = ["BLACK_BOX", "ablation_controllers", "black_box_excitation", "closed_loop_identification", "gap_closed",
-           "gap_closed_over_seeds", "gap_to_limit_over_seeds",
+__all__ = ["ADDITIONS", "BLACK_BOX", "ablation_controllers", "black_box_excitation", "closed_loop_identification",
+           "gap_closed", "gap_closed_over_seeds", "gap_to_limit_over_seeds",
            "held_out", "identify_for_control", "load_for_control", "loop_controller"]
 
 #: the black-box model kinds of the loop
@@ -35,9 +35,14 @@ QUICK_SEGMENT_S = 600.0  # s of each held-out cycle in quick mode
 QUICK_IDENT_SEEDS = 3  # identification cycles in quick mode (of ident.for_control.IDENT_SEEDS)
 #: the identification ablation's models: without control-relevant excitation (the single over-dosing design of
 #: :func:`black_box_excitation` on the same cycles), the RPEM without storage regressors (Paper III's linear) and
-#: without the multi-step refinement (the equation-error estimate; only when :data:`RPEM_FIT` refines)
+#: without the multi-step refinement (the equation-error estimate; only when :data:`RPEM_FIT` refines), and the
+#: Hammerstein-Wiener model without its static blocks: the linear model class on the same features and outputs
+#: (``fit_hw_for_control(static_blocks=False)``), the loop's linear row
 IDENT_ABLATIONS = ("rpem-no_control_relevant_excitation", "hammerstein_wiener-no_control_relevant_excitation",
-                   "rpem-no_storage_terms", "rpem-no_multistep")
+                   "rpem-no_storage_terms", "rpem-no_multistep", "hammerstein_wiener-no_static_blocks")
+#: the ablation's additions (ingredients off by default, switched on): the RPEM adapted online while its NMPC runs
+#: (:class:`control.online_rpem.OnlineRPEM`; off by default, see control.blackbox.NMPC_SETTINGS)
+ADDITIONS = ("rpem-with_online_adaptation",)
 #: mean NH3 slip limit [ppm] within which a gap counts as closed (Euro VI)
 SLIP_LIMIT_PPM = EURO_VI_NH3_SLIP_LIMIT_PPM
 #: iterations of closed-loop identification of the RPEM (:func:`closed_loop_identification`) in the default loop
@@ -177,6 +182,10 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
                 variants.append(("rpem-no_multistep", "rpem",
                                  lambda r: fit_rpem_for_control(r, validation=validation,
                                                                 **{**rfit, "multistep_horizon": 0})))
+        if "hammerstein_wiener" in kinds:
+            variants.append(("hammerstein_wiener-no_static_blocks", "hammerstein_wiener",
+                             lambda r: fit_hw_for_control(r, **{**(hw_fit or {}), "static_blocks": False,
+                                                                "output_blocks": ("identity", "identity")})))
     info: dict[str, Any] = {"data": {"seeds": list(seeds), "designs": list(DESIGNS), "n_records": len(records),
                                      "validation_seed": VALIDATION_SEED}, "models": {}}
     for name, kind, fit in variants:
@@ -209,7 +218,8 @@ def loop_controller(name: str, greybox: Any, black_box: dict[str, Any] | None, q
     ``mpc_hammerstein_wiener`` (:func:`control.blackbox.black_box_nmpc` on the models of
     :func:`identify_for_control`, ``black_box`` its returned info), their ablation variants
     ``mpc_<model>-no_<ingredient>`` (:data:`control.blackbox.INGREDIENTS` for the controller, or an identification
-    ingredient of :data:`IDENT_ABLATIONS`), or a shipped RL policy."""
+    ingredient of :data:`IDENT_ABLATIONS`), ``mpc_rpem-with_online_adaptation`` (:data:`ADDITIONS`), or a shipped RL
+    policy."""
     from control.blackbox import INGREDIENTS, black_box_nmpc
     from control.factory import identified_mpc, make_controller
 
@@ -220,7 +230,9 @@ def loop_controller(name: str, greybox: Any, black_box: dict[str, Any] | None, q
             raise ValueError(f"{name}: no identified black-box models")
         model_name, _, removed = name[4:].partition("-")
         flags: dict[str, bool] = {}
-        if removed:
+        if removed == "with_online_adaptation" and model_name == "rpem":
+            flags["online_adaptation"] = True
+        elif removed:
             ingredient = removed.removeprefix("no_")
             if ingredient in INGREDIENTS:
                 flags[ingredient] = False
@@ -237,7 +249,7 @@ def ablation_controllers(models: tuple[str, ...] = ("rpem", "hammerstein_wiener"
     from control.blackbox import INGREDIENTS
 
     out = [f"mpc_{m}-no_{i}" for m in models for i in INGREDIENTS]
-    return out + [f"mpc_{m}" for m in IDENT_ABLATIONS if m.split("-")[0] in models]
+    return out + [f"mpc_{m}" for m in (*IDENT_ABLATIONS, *ADDITIONS) if m.split("-")[0] in models]
 
 
 def gap_closed_over_seeds(kpis_per_seed: dict[str, dict[str, list[dict[str, float]]]]

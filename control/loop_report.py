@@ -57,6 +57,11 @@ def loop_report(doc: dict[str, Any], figures: Sequence[Path]) -> str:
               "| model | " + " | ".join(cycles) + " |", "|---|" + "---|" * len(cycles)]
     for model, per in doc["gap_closed"].items():
         lines.append(f"| {model} | " + " | ".join(f"{per.get(c, _NAN):.2f}" for c in cycles) + " |")
+    if doc.get("ablation"):
+        lines += ["", ("Ablation rows: `<model>-no_<ingredient>` is the NMPC with that ingredient removed; "
+                       "`hammerstein_wiener-no_static_blocks` is the linear model class (identity blocks on every "
+                       "input and output, same features and outputs); `rpem-with_online_adaptation` adds the online "
+                       "adaptation that is off by default."), ""]
     for e in doc.get("gap_closed_excluded", []):
         lines.append(f"- not counted: {e['model']} on {e['cycle']} (raw fraction {e['raw_fraction']:.2f}): "
                      f"{e['reason']}")

@@ -242,13 +242,15 @@ def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots
                        output_blocks: Sequence[str] = ("identity", "identity"), n_out_knots: int = 4,
                        nox_kind: str = NOX_KIND, nh3_kind: str = NH3_KIND, surplus_block: str = "identity",
                        features: Sequence[str] = CONTROL_FEATURES, multistep_horizon: int = 0,
-                       multistep_nfev: int = 40) -> tuple[Any, dict[str, Any]]:
+                       multistep_nfev: int = 40, static_blocks: bool = True) -> tuple[Any, dict[str, Any]]:
     """The Hammerstein-Wiener model for the NMPC: one two-output model (NOx in the ``nox_kind`` representation,
     NH3 in ``nh3_kind``; default log NOx slip ratio, log NH3) on the standardised :data:`CONTROL_FEATURES`,
     piecewise-linear input blocks (``surplus_block`` ``"identity"`` or ``"pwl"`` on the surplus, which enters both
     signs), linear dynamics, output blocks ``output_blocks`` per output (:data:`HW_OUTPUT_BLOCKS`: identity, or a
     static block that can express spill-over), on the records end to end (each record's first minute unweighted).
-    Returns the fitted model and its description."""
+    ``static_blocks=False``: identity blocks on every input and output, i.e. the *linear* model class on the same
+    features and outputs (the loop's linear row and the ablation of the static blocks). Returns the fitted model and
+    its description."""
     from ident.hammerstein_wiener import HammersteinWiener
     from ident.hammerstein_wiener.blocks import Identity, PiecewiseLinear
 
@@ -266,8 +268,13 @@ def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots
             for j, k in enumerate(output_blocks)]
     if surplus_block not in ("identity", "pwl"):
         raise ValueError(f"surplus_block must be 'identity' or 'pwl', got {surplus_block!r}")
-    blocks = [Identity() if f.startswith("surplus") and surplus_block == "identity" else PiecewiseLinear(n_knots)
-              for f in features]
+    if not static_blocks:
+        if any(k != "identity" for k in output_blocks):
+            raise ValueError(f"static_blocks=False is the linear model: output_blocks must be identity, got "
+                             f"{list(output_blocks)}")
+        outs = [Identity(), Identity()]
+    blocks = [Identity() if (f.startswith("surplus") and surplus_block == "identity") or not static_blocks
+              else PiecewiseLinear(n_knots) for f in features]
     model = HammersteinWiener(input_blocks=blocks, output_block=outs, nb=nb, nf=nf, nk=1, max_nfev=max_nfev,
                               initial="zero").fit(Uc, (Yc - ym) / ysd, sample_weight=W)
     if multistep_horizon > 0:
@@ -275,7 +282,8 @@ def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots
     info = {"kind": "hammerstein_wiener", "features": list(features), "z_mean": zm.tolist(),
             "z_scale": zsd.tolist(), "y_mean": ym.tolist(), "y_scale": ysd.tolist(), "nox_kind": nox_kind,
             "nh3_kind": nh3_kind, "nb": nb, "nf": nf, "output_blocks": list(output_blocks),
-            "surplus_block": surplus_block, "multistep_horizon": int(multistep_horizon), "n_records": len(records)}
+            "surplus_block": surplus_block, "multistep_horizon": int(multistep_horizon), "n_records": len(records),
+            "static_blocks": bool(static_blocks)}
     return model, info
 
 

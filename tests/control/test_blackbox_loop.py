@@ -86,6 +86,27 @@ def test_ablation_variants_switch_one_ingredient_off(models: dict) -> None:
     assert set(INGREDIENTS) == {"nh3_sensor", "preview", "offset_free", "slip_guard", "anr_band"}
     with pytest.raises(ValueError, match="kind"):
         black_box_nmpc(model, {**info, "kind": "linear"})
+    # the addition: the RPEM adapted online (off by default), by name
+    assert "mpc_rpem-with_online_adaptation" in names and "mpc_hammerstein_wiener-with_online_adaptation" not in names
+    assert loop_controller("mpc_rpem-with_online_adaptation", None, models, quick=True).model.adaptation is not None
+    assert loop_controller("mpc_rpem", None, models, quick=True).model.adaptation is None
+
+
+def test_linear_row_is_the_hammerstein_wiener_model_without_static_blocks(records: list) -> None:
+    """The loop's linear model class: identity blocks on every input and output, so the model is linear in its
+    features (doubling a feature deviation doubles the response) and its NMPC builds."""
+    from ident.hammerstein_wiener.blocks import Identity
+
+    model, info = fit_hw_for_control(records, max_nfev=5, static_blocks=False)
+    assert info["static_blocks"] is False and info["kind"] == "hammerstein_wiener"
+    assert all(isinstance(b, Identity) for b in model.input_blocks_)
+    assert "mpc_hammerstein_wiener-no_static_blocks" in ablation_controllers()
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=(200, len(CONTROL_FEATURES)))
+    y0 = model.predict(np.zeros_like(u))
+    np.testing.assert_allclose(model.predict(2 * u) - y0, 2 * (model.predict(u) - y0), rtol=1e-8, atol=1e-10)
+    with pytest.raises(ValueError, match="linear model"):
+        fit_hw_for_control(records, max_nfev=1, static_blocks=False, output_blocks=("pwl", "identity"))
 
 
 def _row(nox: float, slip: float) -> dict[str, float]:

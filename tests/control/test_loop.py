@@ -53,3 +53,23 @@ def test_output_stack_predicts_and_exports_like_its_parts() -> None:
         ys.append(np.asarray(yt).ravel())
     np.testing.assert_allclose(np.array(ys), yp, atol=1e-8)
     assert isinstance(f, ca.Function)
+
+
+def test_loop_report_shows_kpis_gaps_limit_and_the_ablation_legend() -> None:
+    from control.loop_report import loop_report
+
+    row = {"tailpipe_nox_g_per_kwh": 0.5, "mean_nh3_slip_ppm": 1.0, "peak_nh3_slip_ppm": 5.0, "nox_conversion": 0.9,
+           "adblue_g": 100.0, "solve_time_ms_median": 10.0, "solve_time_ms_p95": 20.0, "solver_failures": 0.0}
+    kfit = {"40_steps": [[50.0, 60.0]], "160_steps": [[30.0, 40.0]]}
+    doc = {"quick": False, "seeds": [0, 1], "wall_time_s": 12.0, "oracle": "the oracle", "ablation": True,
+           "identification": {"greybox": {"validation_fit_percent_whtc": {"nox": 80.0}},
+                              "black_box": {"models": {"rpem": {"validation_kstep_fit_percent": kfit,
+                                                                "fit_seconds": 3.0},
+                                                       "hammerstein_wiener-no_static_blocks": {"error": "boom"}}}},
+           "kpis": {"whtc": {"lookup_table": row, "mpc_rpem": {**row, "tailpipe_nox_g_per_kwh": 0.3}}},
+           "gap_closed": {"rpem": {"whtc": 0.5}}, "gap_closed_excluded": [],
+           "gap_to_limit": {"whtc": {"limit_tailpipe_nox_g_per_kwh": 0.05,
+                                     "controllers": {"mpc_rpem": {"gap_to_limit": 0.44, "within_slip_limit": True}}}}}
+    text = loop_report(doc, [])
+    assert "| rpem | 0.50 |" in text and "| mpc_rpem | 0.44 |" in text and "limit 0.050 g/kWh" in text
+    assert "linear model class" in text and "failed: boom" in text and "the oracle" in text
