@@ -141,6 +141,14 @@ ORACLE_COARSE_STAGE_STEPS = 60
 #:   2e-4: 0.1404 at 8.35 (over);  4e-4: 0.1430 at 6.93  <- chosen;  6e-4: 0.1448 at 6.34;  (1e-3: 0.1476 at 5.23).
 #: The single-rate oracle it replaces: 0.313 at 6.12 on the same cycles.
 ORACLE_SLIP_PRICE_PER_PPM_S = 4.0e-4
+#: the oracle's mean-slip budget [ppm] and the gain of its slip-price update (NonlinearMPC ``slip_budget_ppm``: the
+#: price rises as exp(gain (m - b) / b) when the episode's mean slip so far m exceeds b): a fixed price is the
+#: multiplier of one cycle, and a cycle with long hot high-load modes needs a higher one. Budget: the 8 ppm target
+#: of the calibration rule (2 ppm margin to the Euro VI 10 ppm). Added after the held-out hot WHSC showed the
+#: fixed-price oracle at 19.65 ppm mean slip (0.075 g/kWh; WHTC 0.071 at 6.24) -- disclosed; gain and price
+#: chosen on the calibration cycles (tables below).
+ORACLE_SLIP_BUDGET_PPM = 8.0
+ORACLE_SLIP_BUDGET_GAIN = 3.0
 #: names of the identified-model NMPC and its benchmarked variants (see IDENTIFIED_STORAGE_VALUE)
 IDENTIFIED_VARIANTS = ("mpc_identified", "mpc_identified_nox_sensor", "mpc_identified_no_preview")
 #: every controller :func:`make_controller` builds without a shipped policy file
@@ -312,13 +320,15 @@ def oracle_stages(coarse_stages: int | None = None, quick: bool = False) -> tupl
 
 def oracle_mpc(quick: bool = False, safe_slip_ppm: float | None = None,
                storage_value_g_per_mol: float | None = None, slip_price_per_ppm_s: float | None = None,
-               coarse_stages: int | None = None) -> Any:
+               coarse_stages: int | None = None, slip_budget_gain: float | None = None) -> Any:
     """NMPC on the first-principles catalyst (privileged state, cycle preview) over the multi-rate stages of
     :func:`oracle_stages` (``coarse_stages`` coarse ones, default :data:`ORACLE_COARSE_STAGES`), slip priced at
     ``slip_price_per_ppm_s`` per ppm s (default :data:`ORACLE_SLIP_PRICE_PER_PPM_S`; no per-stage slip bound),
     terminal value of stored NH3 ``storage_value_g_per_mol`` (default :data:`ORACLE_STORAGE_VALUE_G_PER_MOL`) and,
     when ``safe_slip_ppm`` (default :data:`ORACLE_SAFE_SLIP_PPM`) is finite, the terminal penalty on coverage above
-    the safe coverage at that desorption slip. ``quick``: half the stages."""
+    the safe coverage at that desorption slip. The slip price tracks the mean-slip budget
+    :data:`ORACLE_SLIP_BUDGET_PPM` with gain ``slip_budget_gain`` (default :data:`ORACLE_SLIP_BUDGET_GAIN`; 0: a
+    fixed price). ``quick``: half the stages."""
     from control.models import FirstPrinciplesModel
     from control.mpc import MPCWeights, NonlinearMPC
 
@@ -330,6 +340,8 @@ def oracle_mpc(quick: bool = False, safe_slip_ppm: float | None = None,
                                  else storage_value_g_per_mol))
     return NonlinearMPC(model, stages=oracle_stages(coarse_stages, quick), preview=True,
                         weights=MPCWeights(nh3=0.0, nh3_ppm_s=price), slip_limit_ppm=math.inf,
+                        slip_budget_ppm=ORACLE_SLIP_BUDGET_PPM,
+                        slip_budget_gain=ORACLE_SLIP_BUDGET_GAIN if slip_budget_gain is None else slip_budget_gain,
                         solver_options=dict(ORACLE_SOLVER_OPTIONS), rescue_solver="ipopt",
                         rescue_options=dict(ORACLE_RESCUE_OPTIONS))
 

@@ -19,6 +19,13 @@ time-weighted slip price ``w_nh3_ppm_s``, per ppm s of tailpipe NH3 as the mean-
 disturbance is held at its measured value over the horizon unless ``preview=True`` (then the cycle preview from
 ``env.disturbance_preview``, privileged information, given through :meth:`NonlinearMPC.attach`).
 
+Slip budget (``slip_budget_ppm``, with ``w_nh3_ppm_s > 0``): the slip price is then an NLP parameter, set at each step
+from the episode's mean slip so far ``m`` (``env.episode_kpis()``, privileged) by a multiplicative dual update of
+the mean-slip constraint ``m <= b`` (Lagrangian relaxation of an average constraint, as in drift-plus-penalty
+control; Neely 2010): ``price = w_nh3_ppm_s exp(gain max(m' - b, 0) / b)`` with ``m'`` the mean over the episode so
+far and ``BUDGET_PRIOR_S`` seconds at the budget (early spikes do not dominate). One-sided: the price only rises
+above ``w_nh3_ppm_s``, so a cycle that stays within the budget is controlled as without it.
+
 Model sources (:class:`PredictionModel`, in :mod:`control.models`): the first-principles catalyst (the oracle) and
 any identified model's CasADi export. The state every solve starts from comes from a state estimator of its own
 (:class:`control.estimation.StateEstimator`, do-mpc's split): at each step the controller calls
@@ -80,6 +87,11 @@ from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM, NH3_MOLAR_MASS_G_MOL, 
 
 #: disturbance columns per stage, as ``UreaSCREnv.disturbance_preview``: flow mol/s, inlet T K, NOx ppm, NO2 frac
 N_DISTURBANCE = 4
+#: the slip budget's prior [s]: the mean slip the price tracks counts this many seconds at the budget before the
+#: episode's own, so that a spike in the first minutes does not multiply the price (a design constant, not tuned)
+BUDGET_PRIOR_S = 300.0
+#: the largest exponent of the slip budget's price factor (a factor of e^5 = 148 at most)
+MAX_PRICE_EXPONENT = 5.0
 
 #: exceptions of a solve that count as a failed solve (fallback dose, ``solver_failures``) instead of raising:
 #:
@@ -269,6 +281,10 @@ class NonlinearMPC:
         for the rest. A rescued solve is not a failure; it is counted as ``solver_rescued`` (and kept in
         :attr:`rescues_` with the first solver's failure kind); a solve that both fail counts as failed, with the
         rescue's kind.
+    slip_budget_ppm, slip_budget_gain : the mean-slip budget ``b`` [ppm] the slip price tracks and the gain of
+        its update (module docstring; ``None``: a fixed price). Needs ``weights.nh3_ppm_s > 0`` and an environment
+        with ``episode_kpis()`` (read through :meth:`attach`, privileged: for reference controllers such as the
+        oracle). The price factor of each step is kept for :meth:`stats` (``slip_price_factor_mean`` / ``_max``).
     rescue_hold_steps : after a rescue, the next ``rescue_hold_steps`` solves go to the rescue solver first
         (warm-started from the last plan; the first solver, then the rescue from the cold start, if it fails):
         failed solves come in stretches (a heat-up desorbing the store), and a first solver that fails again at
@@ -282,8 +298,10 @@ class NonlinearMPC:
                  warm_start_duals: bool | None = None, slip_guard: tuple[int, float] | None = None,
                  estimator: StateEstimator | None = None, rescue_solver: str | None = None,
                  rescue_options: dict | None = None, rescue_hold_steps: int = 0,
-                 stages: Any = None) -> None:
+                 stages: Any = None, slip_budget_ppm: float | None = None, slip_budget_gain: float = 1.0) -> None:
         self.model = model
+        self.slip_budget_ppm = slip_budget_ppm
+        self.slip_budget_gain = slip_budget_gain
         self.stage_layout = stages
         if stages is not None and not isinstance(stages, (str, bytes)) and hasattr(stages, "__len__") \
                 and len(stages) > 0:
@@ -327,6 +345,7 @@ class NonlinearMPC:
         self.max_rate_g_s = DEFAULT_MAX_RATE_G_S
         self.observation_size_: int | None = None
         self._env = None
+        self._budget_env = None
         self._solver = None
         self._reset_episode()
 
@@ -354,6 +373,11 @@ class NonlinearMPC:
                              f"{type(self.fallback).__name__}")
         if not isinstance(self.preview, (bool, np.bool_)):
             raise ValueError(f"preview must be True or False, got {self.preview!r}")  # noqa: TRY004  (the rule)
+        if self.slip_budget_ppm is not None:
+            _check_number(self.slip_budget_ppm, "slip_budget_ppm", positive=True, allow_inf=False)
+            _check_number(self.slip_budget_gain, "slip_budget_gain", positive=False, allow_inf=False)
+            if (self.weights or MPCWeights()).nh3_ppm_s <= 0:
+                raise ValueError("slip_budget_ppm prices slip per ppm s: it needs weights.nh3_ppm_s > 0")
 
     # ------------------------------------------------------------------------------------------- protocol hooks
     def attach(self, env: Any) -> None:
@@ -368,6 +392,9 @@ class NonlinearMPC:
         self.dt = float(env.dt)
         self.max_rate_g_s = float(env.max_rate_g_s)
         self._env = env if self.preview else None
+        if self.slip_budget_ppm is not None and not callable(getattr(env, "episode_kpis", None)):
+            raise ValueError("slip_budget_ppm needs an environment with episode_kpis() (the mean slip so far)")
+        self._budget_env = env if self.slip_budget_ppm is not None else None
         self.model.attach(env)
         self.estimator.attach(env)
         self.observation_size_ = n_obs
@@ -391,6 +418,9 @@ class NonlinearMPC:
                "solve_time_ms_max": float(np.max(t)), "solve_wall_ms_median": float(np.median(tw)),
                "solve_wall_ms_p95": float(np.percentile(tw, 95)), "solver_iterations_mean": float(np.mean(it))}
         out.update({f"solver_failures_{k}": float(self._kinds.get(k, 0)) for k in FAILURE_KINDS})
+        if self.slip_budget_ppm is not None:
+            pf = np.asarray(self._price_factors) if self._price_factors else np.array([math.nan])
+            out.update({"slip_price_factor_mean": float(np.mean(pf)), "slip_price_factor_max": float(np.max(pf))})
         return out
 
     def _reset_episode(self) -> None:
@@ -409,6 +439,7 @@ class NonlinearMPC:
         self._iters: list[int] = []
         self._w0: np.ndarray | None = None
         self._lam_g0: np.ndarray | None = None
+        self._price_factors: list[float] = []
         self._u_prev = 0.0
         self._failure: tuple[str, str] | None = None
         self.last_plan_: dict[str, np.ndarray] | None = None
@@ -448,6 +479,7 @@ class NonlinearMPC:
         Pst = ca.SX.sym("P", max(m.n_stage_params, 1), H)
         Pt = ca.SX.sym("Pt", max(m.n_terminal_params, 1))
         u_prev = ca.SX.sym("u_prev")
+        price = ca.SX.sym("price") if self.slip_budget_ppm is not None else w.nh3_ppm_s
         g, lbg, ubg = [], [], []
         cost = 0
         x = x0
@@ -472,7 +504,7 @@ class NonlinearMPC:
             flow = d[0]
             cost += h * flow * 1e-6 * (w.nox * NO2_MOLAR_MASS_G_MOL * y[0] + w.nh3 * NH3_MOLAR_MASS_G_MOL * y[1])
             if w.nh3_ppm_s > 0:
-                cost += w.nh3_ppm_s * h * y[1]
+                cost += price * h * y[1]
             # the slack is per stage of the first stage's length: a longer stage weighs it by its length
             slack_w = w.slack if ks[i] == ks[0] else w.slack * (ks[i] / ks[0])
             cost += w.adblue * h * U[i] + w.rate_change * du ** 2 + slack_w * (S[i] + S[i] ** 2)
@@ -484,6 +516,8 @@ class NonlinearMPC:
         self._lbg, self._ubg = np.array(lbg), np.array(ubg)
         wv = ca.vertcat(ca.vec(X), U, S)
         pv = ca.vertcat(x0, ca.vec(D), ca.vec(Pst), Pt, u_prev)
+        if self.slip_budget_ppm is not None:
+            pv = ca.vertcat(pv, price)
         self._nlp = {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}
         self._solver = self._nlpsol("mpc", self.solver, self.solver_options)
         self._rescue = None if self.rescue_solver is None else self._nlpsol("mpc_rescue", self.rescue_solver,
@@ -608,6 +642,8 @@ class NonlinearMPC:
         pst = np.zeros((H, 1)) if pst.size == 0 else pst
         pt = np.zeros(1) if pt.size == 0 else pt
         pv = np.concatenate([x0, dist.ravel(), pst.ravel(), pt, [self._u_prev]])
+        if self.slip_budget_ppm is not None:
+            pv = np.append(pv, (self.weights or MPCWeights()).nh3_ppm_s * self._slip_price_factor())
         if not np.all(np.isfinite(pv)):
             self._failure = ("nonfinite_model", "non-finite initial state or stage parameters")
             return None
@@ -650,6 +686,18 @@ class NonlinearMPC:
         self._w0 = wopt
         self._lam_g0 = np.asarray(sol["lam_g"]).ravel()
         return float(U[0])
+
+    def _slip_price_factor(self) -> float:
+        """The slip price's factor this step (module docstring: the one-sided dual update on the mean slip so far,
+        ``BUDGET_PRIOR_S`` seconds of it at the budget); kept for :meth:`stats`."""
+        b = float(self.slip_budget_ppm)
+        env = self._budget_env
+        t = float(env.step_index) * self.dt if env is not None else 0.0
+        m = float(env.episode_kpis()["mean_nh3_slip_ppm"]) if env is not None and t > 0 else b
+        m_prior = (m * t + b * BUDGET_PRIOR_S) / (t + BUDGET_PRIOR_S)
+        factor = math.exp(min(self.slip_budget_gain * max(m_prior - b, 0.0) / b, MAX_PRICE_EXPONENT))
+        self._price_factors.append(factor)
+        return factor
 
     def _attempt(self, solver: ca.Function, args: dict[str, Any],
                  tag: str) -> tuple[dict[str, Any] | None, tuple[str, str]]:

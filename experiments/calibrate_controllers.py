@@ -14,7 +14,8 @@ at load steps, a full store slips at the next heat-up. The knob per controller (
   the coverage whose desorption at the hottest temperature of the next 120 s gives that slip (terminal penalty
   above it); ``oracle_storage``: its terminal value of stored NH3 [g/mol]; ``oracle_slip_price``: its price of
   NH3 slip [g AdBlue equivalent per ppm s]; ``oracle_horizon``: its number of 30 s coarse stages after the 2 s ones
-  (:func:`control.factory.oracle_stages`); each with the others at their defaults.
+  (:func:`control.factory.oracle_stages`); ``oracle_budget_gain``: the gain of its slip-budget price update (0:
+  a fixed price); each with the others at their defaults.
 
 Each value is run in closed loop on seeded random cycles (``cycle="random"``, seeds ``--seeds``; the
 identification records use seeds 1-3, the benchmarks the hot WHTC and WHSC) and the rule of the look-up table's
@@ -49,6 +50,7 @@ KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200
          "oracle_storage": ("storage_value_g_per_mol", (50.0, 100.0, 200.0)),
          "oracle_slip_price": ("slip_price_per_ppm_s", (1e-4, 2e-4, 5e-4, 1e-3)),
          "oracle_horizon": ("coarse_stages", (4.0, 8.0, 12.0, 16.0)),
+         "oracle_budget_gain": ("slip_budget_gain", (0.0, 1.0, 3.0, 10.0)),
          "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
 DEFAULT_SEEDS = (5, 6, 7, 8)
 SLIP_TARGET_PPM = 8.0
@@ -69,6 +71,8 @@ def _controller(kind: str, value: float, model: Any, rescue: bool = True) -> Any
         return oracle_mpc(storage_value_g_per_mol=value)
     if kind == "oracle_slip_price":
         return oracle_mpc(slip_price_per_ppm_s=value)
+    if kind == "oracle_budget_gain":
+        return oracle_mpc(slip_budget_gain=value)
     if kind == "oracle_horizon":
         if value != int(value):
             raise ValueError(f"oracle_horizon values are numbers of coarse stages (whole numbers), got {value!r}")

@@ -119,3 +119,49 @@ def test_a_failed_solve_follows_the_last_plan_through_its_multirate_stages():
     # ages 1..6 fall in stages 1, 1, 2, 2, 2 and then past the plan (the look-up table)
     assert rates[:5] == pytest.approx([0.2, 0.2, 0.3, 0.3, 0.3])
     assert mpc.stats()["solver_failures"] == 7
+
+
+class _FakeEnv:
+    """What the slip budget reads: the step index and the episode's mean slip so far."""
+
+    def __init__(self, mean_slip: float, steps: int) -> None:
+        self.mean_slip, self.step_index = mean_slip, steps
+
+    def episode_kpis(self) -> dict:
+        return {"mean_nh3_slip_ppm": self.mean_slip}
+
+
+def test_slip_budget_price_rises_only_above_the_budget():
+    from control.mpc import BUDGET_PRIOR_S, MAX_PRICE_EXPONENT
+
+    mpc = NonlinearMPC(_adapter(), weights=MPCWeights(nh3_ppm_s=1e-3), slip_budget_ppm=8.0, slip_budget_gain=3.0)
+    for slip, steps, want in [(0.0, 0, 1.0), (5.0, 3600, 1.0), (8.0, 3600, 1.0),
+                              (16.0, 3600, math.exp(3.0 * (16.0 * 1800 + 8.0 * BUDGET_PRIOR_S)
+                                                    / (1800 + BUDGET_PRIOR_S) / 8.0 - 3.0)),
+                              (1e6, 3600, math.exp(MAX_PRICE_EXPONENT))]:
+        mpc._budget_env = _FakeEnv(slip, steps)
+        assert mpc._slip_price_factor() == pytest.approx(want)
+    # a spike in the first seconds barely moves it (the prior of BUDGET_PRIOR_S at the budget)
+    mpc._budget_env = _FakeEnv(40.0, 10)   # 5 s at 40 ppm
+    assert mpc._slip_price_factor() < 1.5
+    assert mpc.stats()["slip_price_factor_max"] == pytest.approx(math.exp(MAX_PRICE_EXPONENT))
+
+
+def test_slip_budget_settings_are_checked_naming_them():
+    with pytest.raises(ValueError, match="nh3_ppm_s"):
+        NonlinearMPC(_adapter(), slip_budget_ppm=8.0)
+    for bad in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="slip_budget_ppm"):
+            NonlinearMPC(_adapter(), weights=MPCWeights(nh3_ppm_s=1e-3), slip_budget_ppm=bad)
+    with pytest.raises(ValueError, match="slip_budget_gain"):
+        NonlinearMPC(_adapter(), weights=MPCWeights(nh3_ppm_s=1e-3), slip_budget_ppm=8.0, slip_budget_gain=-1.0)
+
+
+def test_slip_budget_under_budget_is_the_fixed_price_nlp():
+    """Within the budget the price factor is 1: the doses equal the fixed-price NMPC's (the price is an NLP
+    parameter instead of a constant)."""
+    w = MPCWeights(nh3_ppm_s=1e-3)
+    fixed = _doses(NonlinearMPC(FirstPrinciplesModel(), preview=True, stages=(2, 2, 8), weights=w))
+    tracked = NonlinearMPC(FirstPrinciplesModel(), preview=True, stages=(2, 2, 8), weights=w, slip_budget_ppm=8.0)
+    np.testing.assert_allclose(_doses(tracked), fixed, rtol=1e-9, atol=1e-12)
+    assert tracked.stats()["slip_price_factor_max"] == 1.0

@@ -28,7 +28,7 @@ def test_unknown_controller_is_named():
     with pytest.raises(ValueError, match="controller"):
         _controller("lqr", 1.0, None)
     assert set(KNOBS) == {"identified", "identified_preview", "identified_nh3", "oracle", "oracle_storage",
-                          "oracle_slip_price", "oracle_horizon", "lookup_table"}
+                          "oracle_slip_price", "oracle_horizon", "oracle_budget_gain", "lookup_table"}
 
 
 def test_oracle_knobs_build_the_oracle_they_name():
@@ -37,6 +37,7 @@ def test_oracle_knobs_build_the_oracle_they_name():
     oracle = _controller("oracle_horizon", 2.0, None)
     assert oracle.stage_intervals() == (4,) * ORACLE_FINE_STAGES + (ORACLE_COARSE_STAGE_STEPS,) * 2
     assert _controller("oracle_slip_price", 2e-4, None).weights.nh3_ppm_s == pytest.approx(2e-4)
+    assert _controller("oracle_budget_gain", 1.5, None).slip_budget_gain == pytest.approx(1.5)
     with pytest.raises(ValueError, match="whole numbers"):
         _controller("oracle_horizon", 2.5, None)
 
