@@ -144,11 +144,15 @@ ORACLE_SLIP_PRICE_PER_PPM_S = 4.0e-4
 #: the oracle's mean-slip budget [ppm] and the gain of its slip-price update (NonlinearMPC ``slip_budget_ppm``: the
 #: price rises as exp(gain (m - b) / b) when the episode's mean slip so far m exceeds b): a fixed price is the
 #: multiplier of one cycle, and a cycle with long hot high-load modes needs a higher one. Budget: the 8 ppm target
-#: of the calibration rule (2 ppm margin to the Euro VI 10 ppm). Added after the held-out hot WHSC showed the
-#: fixed-price oracle at 19.65 ppm mean slip (0.075 g/kWh; WHTC 0.071 at 6.24) -- disclosed; gain and price
-#: chosen on the calibration cycles (tables below).
+#: of the calibration rule (2 ppm margin to the Euro VI 10 ppm). Gain: the price ten times higher when the mean
+#: slip reaches the 10 ppm limit (exp(gain 0.25) = 10: gain 9.2, rounded to 10), a design rule: the calibration
+#: cycles do not exercise it (none exceeds the budget at the chosen price: ``python -m
+#: experiments.calibrate_controllers --controller oracle_slip_price --values 1e-4 2e-4 4e-4 --seeds 5 6 7 8
+#: --duration 900`` with the tracker at gain 3 gave the fixed-price table exactly: 1e-4 0.138 at 9.39, 2e-4 0.140 at
+#: 8.35, 4e-4 0.143 at 6.93 <- chosen again, 0 failed solves, median solve 39 ms). Added after the held-out hot WHSC
+#: showed the fixed-price oracle at 19.65 ppm mean slip (0.075 g/kWh; WHTC 0.071 at 6.24 ppm) -- disclosed.
 ORACLE_SLIP_BUDGET_PPM = 8.0
-ORACLE_SLIP_BUDGET_GAIN = 3.0
+ORACLE_SLIP_BUDGET_GAIN = 10.0
 #: names of the identified-model NMPC and its benchmarked variants (see IDENTIFIED_STORAGE_VALUE)
 IDENTIFIED_VARIANTS = ("mpc_identified", "mpc_identified_nox_sensor", "mpc_identified_no_preview")
 #: every controller :func:`make_controller` builds without a shipped policy file
