@@ -225,9 +225,14 @@ def test_threading_chooser_runs_the_faster_variant_and_recovers_from_outliers() 
         return picks
 
     c = _ThreadingChooser()
-    picks = run(c, {0: 2e-3, 1: 1e-3}, 4 + 640)
+    picks = run(c, {0: 2e-3, 1: 1e-3}, 4 + 2000)
     assert picks[:4] == [0, 0, 1, 1]  # each variant timed twice, serial first; the first (compilation) call ignored
-    assert picks[4:].count(0) == 10  # then the faster one, the other re-timed every PROBE_EVERY steps
+    # then the faster one; the other re-timed after PROBE_EVERY steps, and after twice as many each time the choice
+    # holds, up to MAX_PROBE_EVERY
+    probes = [i for i, mode in enumerate(picks) if mode == 0][2:]
+    assert probes[0] == 3 + c.PROBE_EVERY
+    assert np.diff(probes).tolist() == [128, 256, 512, 512, 512]
+    assert c.MAX_PROBE_EVERY == 512
     # one slow outlier of the threaded step: back on it at the next re-timing
     c = _ThreadingChooser()
     c.calls = [2, 2]
@@ -237,6 +242,14 @@ def test_threading_chooser_runs_the_faster_variant_and_recovers_from_outliers() 
     # the machine gets busy: the threaded step turns slow, the serial loop takes over within a few steps
     picks = run(c, {0: 2e-3, 1: 8e-3}, 10)
     assert picks[-5:] == [0] * 5
+    # a re-timing that changes the choice starts the back-off again
+    c = _ThreadingChooser()
+    run(c, {0: 2e-3, 1: 1e-3}, 4 + 3 * c.PROBE_EVERY)
+    assert c.probe_every == 4 * c.PROBE_EVERY
+    picks = run(c, {0: 0.5e-3, 1: 1e-3}, 4 * c.PROBE_EVERY + 20)  # the serial loop turns faster: found at the next
+    # re-timing (after 4 PROBE_EVERY steps), and run from then on
+    assert c.best() == 0 and picks[-20:] == [0] * 20
+    assert c.probe_every == c.PROBE_EVERY
 
 
 def test_vector_env_threaded_and_serial_steps_agree_bitwise() -> None:

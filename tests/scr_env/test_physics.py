@@ -148,3 +148,42 @@ def test_zero_input_keeps_an_empty_catalyst_empty(severity):
                  AUX, np.zeros((1, K.N_NOISE)), out)
     assert np.all(th == 0.0)
     assert out[0, O["tailpipe_nh3_ppm"]] == 0.0 and out[0, O["n2_formed_mol_s"]] == 0.0
+
+
+def test_numba_exp_bound_past_glibcs_wrapper_gives_math_exps_values() -> None:
+    """The plant binds numba's exp to glibc's computation without its compatibility wrapper
+    (scr_env.physics.libm): the same bits as Python's math.exp over the whole double range."""
+    import math
+
+    import numba
+
+    from scr_env.physics import libm
+
+    assert libm.bind_direct_exp() == (libm.direct_exp_address() is not None)
+
+    @numba.njit(cache=False)
+    def exp_all(x: np.ndarray, out: np.ndarray) -> None:
+        for i in range(x.size):
+            out[i] = math.exp(x[i])
+
+    rng = np.random.default_rng(0)
+    tiny = np.finfo(float).tiny
+    x = np.concatenate([
+        rng.uniform(-750.0, 720.0, 200_000),  # the whole range of finite, subnormal and zero results
+        rng.standard_normal(100_000) * 20.0,  # the arguments of the plant (rate constants, Temkin factor)
+        rng.integers(0, 2**64, 50_000, dtype=np.uint64).view(np.float64),  # any bit pattern
+        [0.0, -0.0, np.inf, -np.inf, np.nan, 709.782712893384, 709.7827128933841, -708.3964185322641,
+         -745.1332191019411, -745.1332191019412, 5e-324, -5e-324, tiny, -tiny, 1e-310]])
+    got = np.empty_like(x)
+    exp_all(x, got)
+
+    def math_exp(v: float) -> float:
+        try:
+            return math.exp(v)
+        except OverflowError:
+            return math.inf
+
+    expected = np.array([math_exp(v) for v in x.tolist()])
+    nan = np.isnan(expected)
+    np.testing.assert_array_equal(np.isnan(got), nan)
+    np.testing.assert_array_equal(got[~nan].view(np.uint64), expected[~nan].view(np.uint64))
