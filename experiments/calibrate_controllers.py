@@ -10,12 +10,14 @@ at load steps, a full store slips at the next heat-up. The knob per controller (
 * ``identified`` (grey-box NMPC, no preview), ``identified_preview`` (with the cycle preview), ``identified_nh3``
   (with the preview and an EKF that also reads the tailpipe NH3 sensor): the terminal value of stored NH3 [g/mol];
 * ``lookup_table`` (:class:`control.baselines.LookupTableDosing`): the window level ``anr_scale`` of its ANR map;
-* ``oracle`` (first-principles NMPC with the cycle preview): the *safe slip* [ppm] that sets its safe coverage,
-  the coverage whose desorption at the hottest temperature of the next 120 s gives that slip (terminal penalty
-  above it); ``oracle_storage``: its terminal value of stored NH3 [g/mol]; ``oracle_slip_price``: its price of
-  NH3 slip [g AdBlue equivalent per ppm s]; ``oracle_horizon``: its number of 30 s coarse stages after the 2 s ones
-  (:func:`control.factory.oracle_stages`); ``oracle_budget_gain``: the gain of its slip-budget price update (0:
-  a fixed price); each with the others at their defaults.
+* ``oracle`` (the single-rate first-principles NMPC with the cycle preview, :func:`control.factory.oracle_mpc`'s
+  default): the *safe slip* [ppm] that sets its safe coverage, the coverage whose desorption at the hottest
+  temperature of the next 120 s gives that slip (terminal penalty above it); ``oracle_storage``: its terminal value
+  of stored NH3 [g/mol];
+* the multi-rate oracle of issue 19 (:func:`control.factory.multirate_oracle_mpc`): ``multirate_slip_price``, its
+  price of NH3 slip [g AdBlue equivalent per ppm s]; ``multirate_horizon``, its number of 30 s coarse stages after
+  the 2 s ones; ``multirate_budget_gain``, the gain of its slip-budget price update (0: a fixed price);
+  ``multirate_storage`` and ``multirate_safe_slip``; each with the others at their defaults.
 
 Each value is run in closed loop on seeded random cycles (``cycle="random"``, seeds ``--seeds``; the
 identification records use seeds 1-3, the benchmarks the hot WHTC and WHSC) and the rule of the look-up table's
@@ -38,7 +40,14 @@ from typing import Any
 import numpy as np
 
 from control.baselines import LookupTableDosing
-from control.factory import IDENT_EXCITATION, IDENT_SEEDS, greybox_record, identified_mpc, oracle_mpc
+from control.factory import (
+    IDENT_EXCITATION,
+    IDENT_SEEDS,
+    greybox_record,
+    identified_mpc,
+    multirate_oracle_mpc,
+    single_rate_oracle_mpc,
+)
 from experiments._runs import run_folder, save_results
 from experiments.sweep import add_arguments, from_args, run_sweep
 
@@ -48,9 +57,11 @@ KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200
          "identified_nh3": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
          "oracle": ("safe_slip_ppm", (200.0, 300.0, 400.0, 500.0, 600.0)),
          "oracle_storage": ("storage_value_g_per_mol", (50.0, 100.0, 200.0)),
-         "oracle_slip_price": ("slip_price_per_ppm_s", (1e-4, 2e-4, 5e-4, 1e-3)),
-         "oracle_horizon": ("coarse_stages", (4.0, 8.0, 12.0, 16.0)),
-         "oracle_budget_gain": ("slip_budget_gain", (0.0, 1.0, 3.0, 10.0)),
+         "multirate_safe_slip": ("safe_slip_ppm", (100.0, 200.0, 400.0)),
+         "multirate_storage": ("storage_value_g_per_mol", (50.0, 100.0, 200.0)),
+         "multirate_slip_price": ("slip_price_per_ppm_s", (1e-4, 2e-4, 5e-4, 1e-3)),
+         "multirate_horizon": ("coarse_stages", (4.0, 8.0, 12.0, 16.0)),
+         "multirate_budget_gain": ("slip_budget_gain", (0.0, 1.0, 3.0, 10.0)),
          "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
 DEFAULT_SEEDS = (5, 6, 7, 8)
 SLIP_TARGET_PPM = 8.0
@@ -66,17 +77,21 @@ def _controller(kind: str, value: float, model: Any, rescue: bool = True) -> Any
         return identified_mpc(model, storage_value_g_per_mol=value, preview=kind != "identified",
                               nh3_sensor=kind == "identified_nh3", rescue=rescue)
     if kind == "oracle":
-        return oracle_mpc(safe_slip_ppm=value)
+        return single_rate_oracle_mpc(safe_slip_ppm=value)
     if kind == "oracle_storage":
-        return oracle_mpc(storage_value_g_per_mol=value)
-    if kind == "oracle_slip_price":
-        return oracle_mpc(slip_price_per_ppm_s=value)
-    if kind == "oracle_budget_gain":
-        return oracle_mpc(slip_budget_gain=value)
-    if kind == "oracle_horizon":
+        return single_rate_oracle_mpc(storage_value_g_per_mol=value)
+    if kind == "multirate_safe_slip":
+        return multirate_oracle_mpc(safe_slip_ppm=value)
+    if kind == "multirate_storage":
+        return multirate_oracle_mpc(storage_value_g_per_mol=value)
+    if kind == "multirate_slip_price":
+        return multirate_oracle_mpc(slip_price_per_ppm_s=value)
+    if kind == "multirate_budget_gain":
+        return multirate_oracle_mpc(slip_budget_gain=value)
+    if kind == "multirate_horizon":
         if value != int(value):
-            raise ValueError(f"oracle_horizon values are numbers of coarse stages (whole numbers), got {value!r}")
-        return oracle_mpc(coarse_stages=int(value))
+            raise ValueError(f"multirate_horizon values are numbers of coarse stages (whole numbers), got {value!r}")
+        return multirate_oracle_mpc(coarse_stages=int(value))
     if kind == "lookup_table":
         return LookupTableDosing(anr_scale=value)
     raise ValueError(f"controller must be one of {sorted(KNOBS)}, got {kind!r}")

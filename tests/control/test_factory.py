@@ -6,7 +6,15 @@ import pytest
 
 from control.baselines import FeedforwardPI, LookupTableDosing
 from control.estimation import ObservationEKF, PrivilegedState
-from control.factory import CONTROLLERS, IDENTIFIED_VARIANTS, identified_mpc, make_controller, oracle_mpc
+from control.factory import (
+    CONTROLLERS,
+    IDENTIFIED_VARIANTS,
+    identified_mpc,
+    make_controller,
+    multirate_oracle_mpc,
+    oracle_mpc,
+    single_rate_oracle_mpc,
+)
 from control.mpc import NonlinearMPC
 from ident.greybox import StorageGreyBox
 
@@ -40,7 +48,9 @@ def test_identified_mpc_takes_a_fitted_model_not_a_dict(model) -> None:
         identified_mpc(StorageGreyBox())
     with pytest.raises(ValueError, match="needs the fitted grey-box"):
         make_controller("mpc_identified", None)
-    assert oracle_mpc(safe_slip_ppm=20.0).model.safe_slip_ppm == 20.0
+    assert single_rate_oracle_mpc(safe_slip_ppm=20.0).model.safe_slip_ppm == 20.0
+    assert oracle_mpc().stage_intervals() == (4,) * 20   # ORACLE_KIND: the single-rate oracle
+    assert multirate_oracle_mpc().slip_budget_ppm == 8.0
 
 
 def test_the_estimator_is_shared_not_hidden(model) -> None:

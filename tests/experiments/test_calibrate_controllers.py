@@ -28,18 +28,22 @@ def test_unknown_controller_is_named():
     with pytest.raises(ValueError, match="controller"):
         _controller("lqr", 1.0, None)
     assert set(KNOBS) == {"identified", "identified_preview", "identified_nh3", "oracle", "oracle_storage",
-                          "oracle_slip_price", "oracle_horizon", "oracle_budget_gain", "lookup_table"}
+                          "multirate_safe_slip", "multirate_storage", "multirate_slip_price", "multirate_horizon",
+                          "multirate_budget_gain", "lookup_table"}
 
 
 def test_oracle_knobs_build_the_oracle_they_name():
     from control.factory import ORACLE_COARSE_STAGE_STEPS, ORACLE_FINE_STAGES
 
-    oracle = _controller("oracle_horizon", 2.0, None)
+    oracle = _controller("multirate_horizon", 2.0, None)
     assert oracle.stage_intervals() == (4,) * ORACLE_FINE_STAGES + (ORACLE_COARSE_STAGE_STEPS,) * 2
-    assert _controller("oracle_slip_price", 2e-4, None).weights.nh3_ppm_s == pytest.approx(2e-4)
-    assert _controller("oracle_budget_gain", 1.5, None).slip_budget_gain == pytest.approx(1.5)
+    assert _controller("multirate_slip_price", 2e-4, None).weights.nh3_ppm_s == pytest.approx(2e-4)
+    assert _controller("multirate_budget_gain", 1.5, None).slip_budget_gain == pytest.approx(1.5)
     with pytest.raises(ValueError, match="whole numbers"):
-        _controller("oracle_horizon", 2.5, None)
+        _controller("multirate_horizon", 2.5, None)
+    # the single-rate oracle (the benchmarks' reference, control.factory.ORACLE_KIND) keeps its knobs
+    single = _controller("oracle", 300.0, None)
+    assert single.stage_intervals() == (4,) * 20 and single.model.safe_slip_ppm == 300.0
 
 
 def test_identification_cycles_must_not_be_calibration_cycles(capsys):
