@@ -243,13 +243,16 @@ def loop_controller(name: str, greybox: Any, black_box: dict[str, Any] | None, q
     return make_controller(name, None, quick)
 
 
-def ablation_controllers(models: tuple[str, ...] = ("rpem", "hammerstein_wiener")) -> list[str]:
+def ablation_controllers(models: tuple[str, ...] = ("rpem", "hammerstein_wiener"), quick: bool = False) -> list[str]:
     """The ablation's controller names: each controller ingredient removed in turn, and each identification
-    ingredient (:data:`IDENT_ABLATIONS`) removed in turn, per model."""
+    ingredient (:data:`IDENT_ABLATIONS`) removed in turn, per model; ``rpem-no_multistep`` only where the mode's
+    RPEM fit refines (:data:`RPEM_FIT`, :data:`QUICK_RPEM_FIT`)."""
     from control.blackbox import INGREDIENTS
 
+    refines = bool((QUICK_RPEM_FIT if quick else RPEM_FIT).get("multistep_horizon"))
     out = [f"mpc_{m}-no_{i}" for m in models for i in INGREDIENTS]
-    return out + [f"mpc_{m}" for m in (*IDENT_ABLATIONS, *ADDITIONS) if m.split("-")[0] in models]
+    return out + [f"mpc_{m}" for m in (*IDENT_ABLATIONS, *ADDITIONS) if m.split("-")[0] in models
+                  and (refines or m != "rpem-no_multistep")]
 
 
 def gap_closed_over_seeds(kpis_per_seed: dict[str, dict[str, list[dict[str, float]]]]

@@ -86,7 +86,7 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
         print(f"  {n}: " + (m["error"] if "error" in m else f"k-step FIT {m['validation_kstep_fit_percent']}"))
     rl, rl_note = available_rl() if include_rl else ([], "RL policies not requested")
     names = ["lookup_table", "mpc_oracle", "mpc_greybox", *[f"mpc_{m}" for m in BLACK_BOX], "pi", *rl]
-    names += ablation_controllers() if ablation else []
+    names += ablation_controllers(quick=quick) if ablation else []
     traces = held_out(quick)
     tasks = [{"name": n, "trace_index": i, "seed": int(s), "models": models, "quick": quick}
              for s in seeds for n in names for i in range(len(traces))]

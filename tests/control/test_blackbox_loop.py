@@ -77,6 +77,7 @@ def test_ablation_variants_switch_one_ingredient_off(models: dict) -> None:
     names = ablation_controllers()
     assert "mpc_rpem-no_preview" in names and "mpc_hammerstein_wiener-no_nh3_sensor" in names
     assert "mpc_rpem-no_multistep" in names and "mpc_hammerstein_wiener-no_multistep" not in names
+    assert "mpc_rpem-no_multistep" not in ablation_controllers(quick=True)   # the quick fit does not refine
     p = loop_controller("mpc_rpem-no_offset_free", None, models, quick=True)
     assert p.model.disturbance == "none"
     p = loop_controller("mpc_hammerstein_wiener-no_slip_guard", None, models, quick=True)
