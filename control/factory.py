@@ -402,6 +402,47 @@ def multirate_oracle_mpc(quick: bool = False, safe_slip_ppm: float | None = None
                         rescue_options=dict(ORACLE_RESCUE_OPTIONS))
 
 
+#: the calibrated argument of each controller of ``experiments.calibrate_controllers`` and the values tried by default
+CALIBRATION_KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
+                     "identified_preview": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
+                     "identified_nh3": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
+                     "oracle": ("safe_slip_ppm", (200.0, 300.0, 400.0, 500.0, 600.0)),
+                     "oracle_storage": ("storage_value_g_per_mol", (50.0, 100.0, 200.0)),
+                     "multirate_safe_slip": ("safe_slip_ppm", (100.0, 200.0, 400.0)),
+                     "multirate_storage": ("storage_value_g_per_mol", (50.0, 100.0, 200.0)),
+                     "multirate_slip_price": ("slip_price_per_ppm_s", (1e-4, 2e-4, 5e-4, 1e-3)),
+                     "multirate_horizon": ("coarse_stages", (4.0, 8.0, 12.0, 16.0)),
+                     "multirate_budget_gain": ("slip_budget_gain", (0.0, 1.0, 3.0, 10.0)),
+                     "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
+
+
+def calibration_controller(kind: str, value: float, model: Any, rescue: bool = True) -> Any:
+    """The controller ``kind`` of :data:`CALIBRATION_KNOBS` with its knob at ``value`` (``model``: the fitted
+    grey-box of the identified kinds; ``rescue``: their IPOPT rescue solver)."""
+    if kind in ("identified", "identified_preview", "identified_nh3"):
+        return identified_mpc(model, storage_value_g_per_mol=value, preview=kind != "identified",
+                              nh3_sensor=kind == "identified_nh3", rescue=rescue)
+    if kind == "oracle":
+        return single_rate_oracle_mpc(safe_slip_ppm=value)
+    if kind == "oracle_storage":
+        return single_rate_oracle_mpc(storage_value_g_per_mol=value)
+    if kind == "multirate_safe_slip":
+        return multirate_oracle_mpc(safe_slip_ppm=value)
+    if kind == "multirate_storage":
+        return multirate_oracle_mpc(storage_value_g_per_mol=value)
+    if kind == "multirate_slip_price":
+        return multirate_oracle_mpc(slip_price_per_ppm_s=value)
+    if kind == "multirate_budget_gain":
+        return multirate_oracle_mpc(slip_budget_gain=value)
+    if kind == "multirate_horizon":
+        if value != int(value):
+            raise ValueError(f"multirate_horizon values are numbers of coarse stages (whole numbers), got {value!r}")
+        return multirate_oracle_mpc(coarse_stages=int(value))
+    if kind == "lookup_table":
+        return LookupTableDosing(anr_scale=value)
+    raise ValueError(f"controller must be one of {sorted(CALIBRATION_KNOBS)}, got {kind!r}")
+
+
 # ------------------------------------------------------------------------------------------------ by name
 def make_controller(name: str, model: Any = None, quick: bool = False) -> Any:
     """A fresh controller by name: ``lookup_table``, ``pi``, the grey-box NMPC ``mpc_identified`` and its variants

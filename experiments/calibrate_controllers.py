@@ -39,30 +39,18 @@ from typing import Any
 
 import numpy as np
 
-from control.baselines import LookupTableDosing
 from control.factory import (
+    CALIBRATION_KNOBS,
     IDENT_EXCITATION,
     IDENT_SEEDS,
+    calibration_controller,
     greybox_record,
-    identified_mpc,
-    multirate_oracle_mpc,
-    single_rate_oracle_mpc,
 )
 from experiments._runs import run_folder, save_results
 from experiments.sweep import add_arguments, from_args, run_sweep
 
-#: the calibrated argument of each controller and the values tried by default
-KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
-         "identified_preview": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
-         "identified_nh3": ("storage_value_g_per_mol", (0.0, 50.0, 100.0, 150.0, 200.0)),
-         "oracle": ("safe_slip_ppm", (200.0, 300.0, 400.0, 500.0, 600.0)),
-         "oracle_storage": ("storage_value_g_per_mol", (50.0, 100.0, 200.0)),
-         "multirate_safe_slip": ("safe_slip_ppm", (100.0, 200.0, 400.0)),
-         "multirate_storage": ("storage_value_g_per_mol", (50.0, 100.0, 200.0)),
-         "multirate_slip_price": ("slip_price_per_ppm_s", (1e-4, 2e-4, 5e-4, 1e-3)),
-         "multirate_horizon": ("coarse_stages", (4.0, 8.0, 12.0, 16.0)),
-         "multirate_budget_gain": ("slip_budget_gain", (0.0, 1.0, 3.0, 10.0)),
-         "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
+#: the calibrated argument of each controller and the values tried by default (control.factory.CALIBRATION_KNOBS)
+KNOBS = CALIBRATION_KNOBS
 DEFAULT_SEEDS = (5, 6, 7, 8)
 SLIP_TARGET_PPM = 8.0
 #: the rule also asks for fewer failed solves than this share of the steps on every calibration cycle: a
@@ -70,31 +58,7 @@ SLIP_TARGET_PPM = 8.0
 MAX_FAILURE_RATE = 0.01
 
 
-def _controller(kind: str, value: float, model: Any, rescue: bool = True) -> Any:
-    """The controller ``kind`` with its knob at ``value`` (``model``: the fitted grey-box of the identified kinds;
-    ``rescue``: their IPOPT rescue solver)."""
-    if kind in ("identified", "identified_preview", "identified_nh3"):
-        return identified_mpc(model, storage_value_g_per_mol=value, preview=kind != "identified",
-                              nh3_sensor=kind == "identified_nh3", rescue=rescue)
-    if kind == "oracle":
-        return single_rate_oracle_mpc(safe_slip_ppm=value)
-    if kind == "oracle_storage":
-        return single_rate_oracle_mpc(storage_value_g_per_mol=value)
-    if kind == "multirate_safe_slip":
-        return multirate_oracle_mpc(safe_slip_ppm=value)
-    if kind == "multirate_storage":
-        return multirate_oracle_mpc(storage_value_g_per_mol=value)
-    if kind == "multirate_slip_price":
-        return multirate_oracle_mpc(slip_price_per_ppm_s=value)
-    if kind == "multirate_budget_gain":
-        return multirate_oracle_mpc(slip_budget_gain=value)
-    if kind == "multirate_horizon":
-        if value != int(value):
-            raise ValueError(f"multirate_horizon values are numbers of coarse stages (whole numbers), got {value!r}")
-        return multirate_oracle_mpc(coarse_stages=int(value))
-    if kind == "lookup_table":
-        return LookupTableDosing(anr_scale=value)
-    raise ValueError(f"controller must be one of {sorted(KNOBS)}, got {kind!r}")
+_controller = calibration_controller
 
 
 def cycle_seed(seed: int) -> int:
