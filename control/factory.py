@@ -336,16 +336,20 @@ def black_box_mpc(model: Any, input_mean: Any, input_scale: Any, output_mean: An
     return NonlinearMPC(adapter, horizon=10 if quick else 20, stage_steps=4, preview=False, **IDENT_SOLVER)
 
 
-def oracle_stages(coarse_stages: int | None = None, quick: bool = False) -> tuple[int, ...]:
+def oracle_stages(coarse_stages: int | None = None, quick: bool = False,
+                  coarse_stage_steps: int | None = None) -> tuple[int, ...]:
     """The oracle's multi-rate stages [control intervals]: :data:`ORACLE_FINE_STAGES` of 4, then ``coarse_stages``
-    (default :data:`ORACLE_COARSE_STAGES`) of :data:`ORACLE_COARSE_STAGE_STEPS`; ``quick``: half of each."""
-    n_coarse = ORACLE_COARSE_STAGES if coarse_stages is None else int(coarse_stages)
-    if n_coarse < 0:
-        raise ValueError(f"coarse_stages must be a whole number >= 0, got {coarse_stages!r}")
-    n_fine = ORACLE_FINE_STAGES
+    (default :data:`ORACLE_COARSE_STAGES`) of ``coarse_stage_steps`` (default :data:`ORACLE_COARSE_STAGE_STEPS`);
+    ``quick``: half of each count."""
+    n_coarse = ORACLE_COARSE_STAGES if coarse_stages is None else coarse_stages
+    steps = ORACLE_COARSE_STAGE_STEPS if coarse_stage_steps is None else coarse_stage_steps
+    for name, v, lo in (("coarse_stages", n_coarse, 0), ("coarse_stage_steps", steps, 1)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise ValueError(f"{name} must be a whole number >= {lo}, got {v!r}")
+    n_fine, n_coarse = ORACLE_FINE_STAGES, int(n_coarse)
     if quick:
         n_fine, n_coarse = max(n_fine // 2, 1), n_coarse // 2
-    return (4,) * n_fine + (ORACLE_COARSE_STAGE_STEPS,) * n_coarse
+    return (4,) * n_fine + (int(steps),) * n_coarse
 
 
 def oracle_mpc(quick: bool = False) -> Any:
@@ -374,10 +378,12 @@ def single_rate_oracle_mpc(quick: bool = False, safe_slip_ppm: float | None = No
 
 def multirate_oracle_mpc(quick: bool = False, safe_slip_ppm: float | None = None,
                          storage_value_g_per_mol: float | None = None, slip_price_per_ppm_s: float | None = None,
-                         coarse_stages: int | None = None, slip_budget_gain: float | None = None) -> Any:
+                         coarse_stages: int | None = None, slip_budget_gain: float | None = None,
+                         coarse_stage_steps: int | None = None) -> Any:
     """The multi-rate oracle of issue 19 (``mpc_oracle_multirate``): NMPC on the first-principles catalyst
     (privileged state, cycle preview) over the multi-rate stages of :func:`oracle_stages` (``coarse_stages`` coarse
-    ones, default :data:`ORACLE_COARSE_STAGES`), slip priced at
+    ones, default :data:`ORACLE_COARSE_STAGES`, of ``coarse_stage_steps`` control intervals, default
+    :data:`ORACLE_COARSE_STAGE_STEPS`), slip priced at
     ``slip_price_per_ppm_s`` per ppm s (default :data:`ORACLE_SLIP_PRICE_PER_PPM_S`; no per-stage slip bound),
     terminal value of stored NH3 ``storage_value_g_per_mol`` (default :data:`ORACLE_STORAGE_VALUE_G_PER_MOL`) and,
     when ``safe_slip_ppm`` (default :data:`ORACLE_SAFE_SLIP_PPM`) is finite, the terminal penalty on coverage above
@@ -394,7 +400,7 @@ def multirate_oracle_mpc(quick: bool = False, safe_slip_ppm: float | None = None
         lookahead_s=ORACLE_LOOKAHEAD_S,
         storage_value_g_per_mol=(ORACLE_STORAGE_VALUE_G_PER_MOL if storage_value_g_per_mol is None
                                  else storage_value_g_per_mol))
-    return NonlinearMPC(model, stages=oracle_stages(coarse_stages, quick), preview=True,
+    return NonlinearMPC(model, stages=oracle_stages(coarse_stages, quick, coarse_stage_steps), preview=True,
                         weights=MPCWeights(nh3=0.0, nh3_ppm_s=price), slip_limit_ppm=math.inf,
                         slip_budget_ppm=ORACLE_SLIP_BUDGET_PPM,
                         slip_budget_gain=ORACLE_SLIP_BUDGET_GAIN if slip_budget_gain is None else slip_budget_gain,
@@ -413,7 +419,29 @@ CALIBRATION_KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0
                      "multirate_slip_price": ("slip_price_per_ppm_s", (1e-4, 2e-4, 5e-4, 1e-3)),
                      "multirate_horizon": ("coarse_stages", (4.0, 8.0, 12.0, 16.0)),
                      "multirate_budget_gain": ("slip_budget_gain", (0.0, 1.0, 3.0, 10.0)),
+                     "multirate_coarse_steps": ("coarse_stage_steps", (60.0, 120.0, 240.0)),
                      "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
+
+
+def _whole(kind: str, value: float) -> int:
+    if value != int(value):
+        raise ValueError(f"{kind} values are whole numbers (stages or control intervals), got {value!r}")
+    return int(value)
+
+
+#: how each kind of :data:`CALIBRATION_KNOBS` that is not a grey-box NMPC is built from its knob value
+_CALIBRATION_BUILDERS: dict[str, Any] = {
+    "oracle": lambda v: single_rate_oracle_mpc(safe_slip_ppm=v),
+    "oracle_storage": lambda v: single_rate_oracle_mpc(storage_value_g_per_mol=v),
+    "multirate_safe_slip": lambda v: multirate_oracle_mpc(safe_slip_ppm=v),
+    "multirate_storage": lambda v: multirate_oracle_mpc(storage_value_g_per_mol=v),
+    "multirate_slip_price": lambda v: multirate_oracle_mpc(slip_price_per_ppm_s=v),
+    "multirate_budget_gain": lambda v: multirate_oracle_mpc(slip_budget_gain=v),
+    "multirate_horizon": lambda v: multirate_oracle_mpc(coarse_stages=_whole("multirate_horizon", v)),
+    "multirate_coarse_steps": lambda v: multirate_oracle_mpc(
+        coarse_stage_steps=_whole("multirate_coarse_steps", v)),
+    "lookup_table": lambda v: LookupTableDosing(anr_scale=v),
+}
 
 
 def calibration_controller(kind: str, value: float, model: Any, rescue: bool = True) -> Any:
@@ -422,25 +450,9 @@ def calibration_controller(kind: str, value: float, model: Any, rescue: bool = T
     if kind in ("identified", "identified_preview", "identified_nh3"):
         return identified_mpc(model, storage_value_g_per_mol=value, preview=kind != "identified",
                               nh3_sensor=kind == "identified_nh3", rescue=rescue)
-    if kind == "oracle":
-        return single_rate_oracle_mpc(safe_slip_ppm=value)
-    if kind == "oracle_storage":
-        return single_rate_oracle_mpc(storage_value_g_per_mol=value)
-    if kind == "multirate_safe_slip":
-        return multirate_oracle_mpc(safe_slip_ppm=value)
-    if kind == "multirate_storage":
-        return multirate_oracle_mpc(storage_value_g_per_mol=value)
-    if kind == "multirate_slip_price":
-        return multirate_oracle_mpc(slip_price_per_ppm_s=value)
-    if kind == "multirate_budget_gain":
-        return multirate_oracle_mpc(slip_budget_gain=value)
-    if kind == "multirate_horizon":
-        if value != int(value):
-            raise ValueError(f"multirate_horizon values are numbers of coarse stages (whole numbers), got {value!r}")
-        return multirate_oracle_mpc(coarse_stages=int(value))
-    if kind == "lookup_table":
-        return LookupTableDosing(anr_scale=value)
-    raise ValueError(f"controller must be one of {sorted(CALIBRATION_KNOBS)}, got {kind!r}")
+    if kind not in _CALIBRATION_BUILDERS:
+        raise ValueError(f"controller must be one of {sorted(CALIBRATION_KNOBS)}, got {kind!r}")
+    return _CALIBRATION_BUILDERS[kind](value)
 
 
 # ------------------------------------------------------------------------------------------------ by name

@@ -15,8 +15,8 @@ at load steps, a full store slips at the next heat-up. The knob per controller (
   temperature of the next 120 s gives that slip (terminal penalty above it); ``oracle_storage``: its terminal value
   of stored NH3 [g/mol];
 * the multi-rate oracle of issue 19 (:func:`control.factory.multirate_oracle_mpc`): ``multirate_slip_price``, its
-  price of NH3 slip [g AdBlue equivalent per ppm s]; ``multirate_horizon``, its number of 30 s coarse stages after
-  the 2 s ones; ``multirate_budget_gain``, the gain of its slip-budget price update (0: a fixed price);
+  price of NH3 slip [g AdBlue equivalent per ppm s]; ``multirate_horizon``, its number of coarse stages after
+  the 2 s ones; ``multirate_coarse_steps``, the length of each coarse stage [control intervals of 0.5 s]; ``multirate_budget_gain``, the gain of its slip-budget price update (0: a fixed price);
   ``multirate_storage`` and ``multirate_safe_slip``; each with the others at their defaults.
 
 Each value is run in closed loop on seeded random cycles (``cycle="random"``, seeds ``--seeds``; the

@@ -7,22 +7,13 @@ import math
 
 import numpy as np
 import pytest
+from toy_models import OBS
+from toy_models import toy_greybox_adapter as _adapter
 
 from control.evaluation import evaluate
-from control.models import FirstPrinciplesModel, IdentifiedModelAdapter
+from control.models import FirstPrinciplesModel
 from control.mpc import MPCWeights, NonlinearMPC
-from ident.greybox import StorageGreyBox
 from scr_env.envs.urea_scr import UreaSCREnv
-
-OBS = np.array([500.0, 550.0, 6.0, 30.0, 0.0], dtype=np.float32)
-
-
-def _adapter():
-    m = StorageGreyBox.from_params(np.zeros(11), np.array([0.95, 1.0]), n_cells=2)
-    return IdentifiedModelAdapter(m, np.zeros(4), np.ones(4), np.zeros(3), np.ones(3), measurement_noise=100.0,
-                                  process_noise=np.array([1e-6, 1e-6, 0.5]),
-                                  state_bounds=(np.array([0, 0, 250.0]), np.array([1, 1, 900.0])),
-                                  initial_state=lambda obs: np.array([0.0, 0.0, obs[1]]))
 
 
 def _doses(mpc, cycle="whsc", steps=8):

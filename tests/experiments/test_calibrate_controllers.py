@@ -29,11 +29,11 @@ def test_unknown_controller_is_named():
         _controller("lqr", 1.0, None)
     assert set(KNOBS) == {"identified", "identified_preview", "identified_nh3", "oracle", "oracle_storage",
                           "multirate_safe_slip", "multirate_storage", "multirate_slip_price", "multirate_horizon",
-                          "multirate_budget_gain", "lookup_table"}
+                          "multirate_budget_gain", "multirate_coarse_steps", "lookup_table"}
 
 
 def test_oracle_knobs_build_the_oracle_they_name():
-    from control.factory import ORACLE_COARSE_STAGE_STEPS, ORACLE_FINE_STAGES
+    from control.factory import ORACLE_COARSE_STAGE_STEPS, ORACLE_COARSE_STAGES, ORACLE_FINE_STAGES
 
     oracle = _controller("multirate_horizon", 2.0, None)
     assert oracle.stage_intervals() == (4,) * ORACLE_FINE_STAGES + (ORACLE_COARSE_STAGE_STEPS,) * 2
@@ -41,6 +41,10 @@ def test_oracle_knobs_build_the_oracle_they_name():
     assert _controller("multirate_budget_gain", 1.5, None).slip_budget_gain == pytest.approx(1.5)
     with pytest.raises(ValueError, match="whole numbers"):
         _controller("multirate_horizon", 2.5, None)
+    longer = _controller("multirate_coarse_steps", 120.0, None)
+    assert longer.stage_intervals() == (4,) * ORACLE_FINE_STAGES + (120,) * ORACLE_COARSE_STAGES
+    with pytest.raises(ValueError, match="multirate_coarse_steps"):
+        _controller("multirate_coarse_steps", 0.5, None)
     # the single-rate oracle (the benchmarks' reference, control.factory.ORACLE_KIND) keeps its knobs
     single = _controller("oracle", 300.0, None)
     assert single.stage_intervals() == (4,) * 20 and single.model.safe_slip_ppm == 300.0
