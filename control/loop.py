@@ -23,9 +23,9 @@ import numpy as np
 
 from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM
 
-__all__ = ["ADDITIONS", "BLACK_BOX", "ablation_controllers", "black_box_excitation", "closed_loop_identification",
-           "gap_closed", "gap_closed_over_seeds", "gap_to_limit_over_seeds",
-           "held_out", "identify_for_control", "load_for_control", "loop_controller"]
+__all__ = ["ADDITIONS", "BLACK_BOX", "SENSOR_NOISE_FREE", "ablation_controllers", "black_box_excitation",
+           "closed_loop_identification", "gap_closed", "gap_closed_over_seeds", "gap_to_limit_over_seeds",
+           "held_out", "identify_for_control", "load_for_control", "loop_controller", "replicate_over_seeds"]
 
 #: the black-box model kinds of the loop
 BLACK_BOX = ("rpem", "hammerstein_wiener")
@@ -43,6 +43,10 @@ IDENT_ABLATIONS = ("rpem-no_control_relevant_excitation", "hammerstein_wiener-no
 #: the ablation's additions (ingredients off by default, switched on): the RPEM adapted online while its NMPC runs
 #: (:class:`control.online_rpem.OnlineRPEM`; off by default, see control.blackbox.NMPC_SETTINGS)
 ADDITIONS = ("rpem-with_online_adaptation",)
+#: the loop's controllers that read no sensor (privileged state and cycle preview): their episode does not depend
+#: on the sensor-noise seed (the dose trajectories are bitwise equal, tested in tests/control/test_loop.py), so a
+#: study over several seeds runs them once (:func:`replicate_over_seeds`)
+SENSOR_NOISE_FREE = ("mpc_oracle",)
 #: mean NH3 slip limit [ppm] within which a gap counts as closed (Euro VI)
 SLIP_LIMIT_PPM = EURO_VI_NH3_SLIP_LIMIT_PPM
 #: iterations of closed-loop identification of the RPEM (:func:`closed_loop_identification`) in the default loop
@@ -200,6 +204,23 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
         info["models"][name] = {"kind": kind, "path": str(save_model(model, out / f"model_{name}")), "info": minfo,
                                 "fit_seconds": time.perf_counter() - t0, "validation_kstep_fit_percent": kfit}
     return info
+
+
+def replicate_over_seeds(results: list[dict[str, Any]], seeds: tuple[int, ...],
+                         names: tuple[str, ...] = SENSOR_NOISE_FREE) -> list[dict[str, Any]]:
+    """``results`` (episode dicts with ``name``, ``cycle``, ``seed``) with each episode of a controller in
+    ``names`` run under the first seed copied to every other seed of ``seeds`` (marked ``"replicated_from"``); the
+    episodes of the other controllers are kept as they are. A controller of ``names`` already run under a seed keeps
+    that run."""
+    have = {(r["name"], r["cycle"], r["seed"]) for r in results}
+    out = list(results)
+    for r in results:
+        if r["name"] not in names or r["seed"] != seeds[0]:
+            continue
+        for s in seeds[1:]:
+            if (r["name"], r["cycle"], s) not in have:
+                out.append({**r, "seed": s, "trajectory": {}, "replicated_from": seeds[0]})
+    return out
 
 
 def load_for_control(name: str, info: dict[str, Any]) -> tuple[Any, dict[str, Any]]:

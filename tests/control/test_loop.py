@@ -73,3 +73,29 @@ def test_loop_report_shows_kpis_gaps_limit_and_the_ablation_legend() -> None:
     text = loop_report(doc, [])
     assert "| rpem | 0.50 |" in text and "| mpc_rpem | 0.44 |" in text and "limit 0.050 g/kWh" in text
     assert "linear model class" in text and "failed: boom" in text and "the oracle" in text
+
+
+def test_sensor_noise_free_controllers_do_not_depend_on_the_noise_seed():
+    """The premise of replicate_over_seeds: the oracle's doses are bitwise equal under two sensor-noise seeds."""
+    from control.evaluation import evaluate
+    from control.loop import SENSOR_NOISE_FREE, loop_controller
+
+    for name in SENSOR_NOISE_FREE:
+        doses = [np.asarray(evaluate(loop_controller(name, None, None, quick=True), cycles=("whtc",), seeds=(s,),
+                                     max_steps=120, record_trajectory=True)[0].trajectory["adblue_g_s"])
+                 for s in (0, 5)]
+        assert np.array_equal(doses[0], doses[1]), name
+
+
+def test_replicate_over_seeds_copies_only_the_noise_free_controllers():
+    from control.loop import replicate_over_seeds
+
+    rows = [{"name": "mpc_oracle", "cycle": "whtc", "seed": 0, "row": {"x": 1.0}, "trajectory": {"t": [0]}},
+            {"name": "lookup_table", "cycle": "whtc", "seed": 0, "row": {"x": 2.0}, "trajectory": {}},
+            {"name": "lookup_table", "cycle": "whtc", "seed": 1, "row": {"x": 3.0}, "trajectory": {}}]
+    out = replicate_over_seeds(rows, (0, 1, 2))
+    oracle = sorted((r["seed"], r["row"]["x"], r.get("replicated_from")) for r in out if r["name"] == "mpc_oracle")
+    assert oracle == [(0, 1.0, None), (1, 1.0, 0), (2, 1.0, 0)]
+    assert sorted(r["seed"] for r in out if r["name"] == "lookup_table") == [0, 1]
+    assert all(r["trajectory"] == {} for r in out if r.get("replicated_from") is not None)
+    assert replicate_over_seeds(rows, (0,)) == rows
