@@ -10,13 +10,14 @@ at load steps, a full store slips at the next heat-up. The knob per controller (
 * ``identified`` (grey-box NMPC, no preview), ``identified_preview`` (with the cycle preview), ``identified_nh3``
   (with the preview and an EKF that also reads the tailpipe NH3 sensor): the terminal value of stored NH3 [g/mol];
 * ``lookup_table`` (:class:`control.baselines.LookupTableDosing`): the window level ``anr_scale`` of its ANR map;
-* ``oracle`` (the single-rate first-principles NMPC with the cycle preview, :func:`control.factory.oracle_mpc`'s
-  default): the *safe slip* [ppm] that sets its safe coverage, the coverage whose desorption at the hottest
-  temperature of the next 120 s gives that slip (terminal penalty above it); ``oracle_storage``: its terminal value
-  of stored NH3 [g/mol];
-* the multi-rate oracle of issue 19 (:func:`control.factory.multirate_oracle_mpc`): ``multirate_slip_price``, its
-  price of NH3 slip [g AdBlue equivalent per ppm s]; ``multirate_horizon``, its number of coarse stages after
-  the 2 s ones; ``multirate_coarse_steps``, the length of each coarse stage [control intervals of 0.5 s]; ``multirate_budget_gain``, the gain of its slip-budget price update (0: a fixed price);
+* ``oracle`` (the single-rate first-principles NMPC with the cycle preview, the earlier reference,
+  :func:`control.factory.single_rate_oracle_mpc`): the *safe slip* [ppm] that sets its safe coverage, the coverage
+  whose desorption at the hottest temperature of the next 120 s gives that slip (terminal penalty above it);
+  ``oracle_storage``: its terminal value of stored NH3 [g/mol];
+* the multi-rate oracle of issue 19, the reference (:func:`control.factory.multirate_oracle_mpc`):
+  ``multirate_slip_price``, its price of NH3 slip [g AdBlue equivalent per ppm s]; ``multirate_horizon``, its number
+  of coarse stages after the 2 s ones; ``multirate_coarse_steps``, the length of each coarse stage [control
+  intervals of 0.5 s]; ``multirate_budget_gain``, the gain of its slip-budget price update (0: a fixed price);
   ``multirate_storage`` and ``multirate_safe_slip``; each with the others at their defaults.
 
 Each value is run in closed loop on seeded random cycles (``cycle="random"``, seeds ``--seeds``; the

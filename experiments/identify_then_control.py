@@ -46,9 +46,9 @@ from control.plots import closed_loop_figure
 from experiments._runs import run_folder, write_json, write_text
 from experiments.sweep import add_arguments, from_args, run_sweep
 
-ORACLE = ("control.factory.oracle_mpc: the single-rate oracle NMPC (perfect model, privileged state, cycle preview; "
-          "control.factory.ORACLE_KIND: the multi-rate oracle of issue 19 slips above 10 ppm on the WHSC); the "
-          "clairvoyant limit of control.limit is the reference of gap_to_limit")
+ORACLE = ("control.factory.oracle_mpc: the multi-rate oracle NMPC of issue 19 (perfect model, privileged state, "
+          "cycle preview, 10 stages of 2 s and 4 of 60 s, slip priced per ppm s with a mean-slip budget tracker); "
+          "the clairvoyant limit of control.limit is the reference of gap_to_limit")
 
 
 def episode(name: str, trace_index: int, seed: int, models: dict[str, Any], quick: bool) -> dict[str, Any]:

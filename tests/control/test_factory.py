@@ -49,8 +49,10 @@ def test_identified_mpc_takes_a_fitted_model_not_a_dict(model) -> None:
     with pytest.raises(ValueError, match="needs the fitted grey-box"):
         make_controller("mpc_identified", None)
     assert single_rate_oracle_mpc(safe_slip_ppm=20.0).model.safe_slip_ppm == 20.0
-    assert oracle_mpc().stage_intervals() == (4,) * 20   # ORACLE_KIND: the single-rate oracle
-    assert multirate_oracle_mpc().slip_budget_ppm == 8.0
+    # the reference oracle is the multi-rate one: 10 stages of 2 s, then 4 of 60 s (a 260 s horizon)
+    assert oracle_mpc().stage_intervals() == (4,) * 10 + (120,) * 4
+    assert oracle_mpc().slip_budget_ppm == multirate_oracle_mpc().slip_budget_ppm == 8.0
+    assert make_controller("mpc_oracle_single_rate").stage_intervals() == (4,) * 20
 
 
 def test_the_estimator_is_shared_not_hidden(model) -> None:

@@ -45,7 +45,7 @@ def test_oracle_knobs_build_the_oracle_they_name():
     assert longer.stage_intervals() == (4,) * ORACLE_FINE_STAGES + (120,) * ORACLE_COARSE_STAGES
     with pytest.raises(ValueError, match="multirate_coarse_steps"):
         _controller("multirate_coarse_steps", 0.5, None)
-    # the single-rate oracle (the benchmarks' reference, control.factory.ORACLE_KIND) keeps its knobs
+    # the single-rate oracle (the earlier reference) keeps its knobs
     single = _controller("oracle", 300.0, None)
     assert single.stage_intervals() == (4,) * 20 and single.model.safe_slip_ppm == 300.0
 
