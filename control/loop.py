@@ -25,7 +25,8 @@ from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM
 
 __all__ = ["ADDITIONS", "BLACK_BOX", "SENSOR_NOISE_FREE", "ablation_controllers", "black_box_excitation",
            "closed_loop_identification", "gap_closed", "gap_closed_over_seeds", "gap_to_limit_over_seeds",
-           "held_out", "identify_for_control", "load_for_control", "loop_controller", "replicate_over_seeds"]
+           "held_out", "identify_for_control", "load_for_control", "loop_controller", "replicate_over_seeds",
+           "slowest_first"]
 
 #: the black-box model kinds of the loop
 BLACK_BOX = ("rpem", "hammerstein_wiener")
@@ -204,6 +205,20 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
         info["models"][name] = {"kind": kind, "path": str(save_model(model, out / f"model_{name}")), "info": minfo,
                                 "fit_seconds": time.perf_counter() - t0, "validation_kstep_fit_percent": kfit}
     return info
+
+
+def episode_cost_rank(name: str) -> int:
+    """A rough rank of a loop controller's episode wall time, slowest 0: the oracle and the NMPCs on the black-box
+    models (IPOPT on tens of ms per step), then the other NMPCs (the grey-box's SQP, a few ms), then the rest."""
+    if name == "mpc_oracle" or name.startswith(tuple(f"mpc_{m}" for m in BLACK_BOX)):
+        return 0
+    return 1 if name.startswith("mpc_") else 2
+
+
+def slowest_first(tasks: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``tasks`` (dicts with ``name``) in the order a pool of workers should start them: by
+    :func:`episode_cost_rank`, stable, so the long episodes do not start last and leave one worker idle."""
+    return sorted(tasks, key=lambda t: episode_cost_rank(t["name"]))
 
 
 def replicate_over_seeds(results: list[dict[str, Any]], seeds: tuple[int, ...],

@@ -40,6 +40,7 @@ from control.loop import (
     held_out,
     identify_for_control,
     replicate_over_seeds,
+    slowest_first,
 )
 from control.loop_report import loop_report
 from control.plots import closed_loop_figure
@@ -94,7 +95,8 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
              for s in seeds for n in names for i in range(len(traces)) if s == seeds[0] or n not in SENSOR_NOISE_FREE]
     print(f"3-4. {len(tasks)} closed-loop episodes on {', '.join(t.name for t in traces)}, seeds {list(seeds)} ...",
           flush=True)
-    results = replicate_over_seeds(run_sweep(episode, tasks, description="closed loop", **(sweep_kwargs or {})), seeds)
+    results = run_sweep(episode, slowest_first(tasks), description="closed loop", **(sweep_kwargs or {}))
+    results = sorted(replicate_over_seeds(results, seeds), key=lambda r: (names.index(r["name"]), r["seed"]))
     errors = [f"{r['name']} on {r['cycle']} (seed {r['seed']}): {r['error']}" for r in results if "error" in r]
     per_seed: dict[str, dict[str, list[dict[str, float]]]] = {t.name: {} for t in traces}
     for r in (r for r in results if "error" not in r):

@@ -99,3 +99,13 @@ def test_replicate_over_seeds_copies_only_the_noise_free_controllers():
     assert sorted(r["seed"] for r in out if r["name"] == "lookup_table") == [0, 1]
     assert all(r["trajectory"] == {} for r in out if r.get("replicated_from") is not None)
     assert replicate_over_seeds(rows, (0,)) == rows
+
+
+def test_slowest_first_puts_the_oracle_and_black_box_nmpcs_first_and_keeps_the_order_otherwise():
+    from control.loop import slowest_first
+
+    names = ["lookup_table", "mpc_oracle", "mpc_greybox", "mpc_rpem", "mpc_hammerstein_wiener-no_preview", "pi",
+             "ppo", "mpc_rpem"]
+    order = [t["name"] for t in slowest_first([{"name": n, "i": i} for i, n in enumerate(names)])]
+    assert order == ["mpc_oracle", "mpc_rpem", "mpc_hammerstein_wiener-no_preview", "mpc_rpem", "mpc_greybox",
+                     "lookup_table", "pi", "ppo"]
