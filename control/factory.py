@@ -339,20 +339,38 @@ def black_box_mpc(model: Any, input_mean: Any, input_scale: Any, output_mean: An
     return NonlinearMPC(adapter, horizon=10 if quick else 20, stage_steps=4, preview=False, **IDENT_SOLVER)
 
 
+def _stage_count(name: str, value: Any, lowest: int) -> int:
+    """``value`` as a whole number >= ``lowest`` (ints, numpy ints and whole finite floats), or ``ValueError``
+    naming ``name``."""
+    ok = not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
+    if not (ok and math.isfinite(value) and value == int(value) and value >= lowest):
+        raise ValueError(f"{name} must be a whole number >= {lowest}, got {value!r}")
+    return int(value)
+
+
 def oracle_stages(coarse_stages: int | None = None, quick: bool = False,
                   coarse_stage_steps: int | None = None) -> tuple[int, ...]:
     """The oracle's multi-rate stages [control intervals]: :data:`ORACLE_FINE_STAGES` of 4, then ``coarse_stages``
     (default :data:`ORACLE_COARSE_STAGES`) of ``coarse_stage_steps`` (default :data:`ORACLE_COARSE_STAGE_STEPS`);
-    ``quick``: half of each count."""
-    n_coarse = ORACLE_COARSE_STAGES if coarse_stages is None else coarse_stages
-    steps = ORACLE_COARSE_STAGE_STEPS if coarse_stage_steps is None else coarse_stage_steps
-    for name, v, lo in (("coarse_stages", n_coarse, 0), ("coarse_stage_steps", steps, 1)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-            raise ValueError(f"{name} must be a whole number >= {lo}, got {v!r}")
-    n_fine, n_coarse = ORACLE_FINE_STAGES, int(n_coarse)
+    ``quick``: half of each count (rounded down: one coarse stage becomes none)."""
+    n_coarse = _stage_count("coarse_stages", ORACLE_COARSE_STAGES if coarse_stages is None else coarse_stages, 0)
+    steps = _stage_count("coarse_stage_steps",
+                         ORACLE_COARSE_STAGE_STEPS if coarse_stage_steps is None else coarse_stage_steps, 1)
+    n_fine = ORACLE_FINE_STAGES
     if quick:
         n_fine, n_coarse = max(n_fine // 2, 1), n_coarse // 2
-    return (4,) * n_fine + (int(steps),) * n_coarse
+    return (4,) * n_fine + (steps,) * n_coarse
+
+
+def oracle_description(quick: bool = False) -> str:
+    """One line on the reference oracle for reports: what it knows and its stages (``quick``: the quick ones)."""
+    stages = oracle_stages(quick=quick)
+    n_fine = stages.count(4)
+    coarse = stages[n_fine:]
+    tail = f" and {len(coarse)} of {coarse[0] * 0.5:g} s" if coarse else ""
+    return (f"control.factory.oracle_mpc: the multi-rate oracle NMPC of issue 19 (perfect model, privileged state, "
+            f"cycle preview; {n_fine} stages of 2 s{tail}; slip priced per ppm s with a mean-slip budget tracker); "
+            "the clairvoyant limit of control.limit is the reference of gap_to_limit")
 
 
 def oracle_mpc(quick: bool = False) -> Any:
@@ -423,7 +441,7 @@ CALIBRATION_KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0
 
 
 def _whole(kind: str, value: float) -> int:
-    if value != int(value):
+    if not (math.isfinite(value) and value == int(value)):
         raise ValueError(f"{kind} values are whole numbers (stages or control intervals), got {value!r}")
     return int(value)
 

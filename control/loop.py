@@ -45,8 +45,9 @@ IDENT_ABLATIONS = ("rpem-no_control_relevant_excitation", "hammerstein_wiener-no
 #: (:class:`control.online_rpem.OnlineRPEM`; off by default, see control.blackbox.NMPC_SETTINGS)
 ADDITIONS = ("rpem-with_online_adaptation",)
 #: the loop's controllers that read no sensor (privileged state and cycle preview): their episode does not depend
-#: on the sensor-noise seed (the dose trajectories are bitwise equal, tested in tests/control/test_loop.py), so a
-#: study over several seeds runs them once (:func:`replicate_over_seeds`)
+#: on the sensor-noise seed while no solve fails (a failed solve follows the last plan, then the fallback, which
+#: reads the noisy observation; the dose trajectories and KPIs are bitwise equal, tested in
+#: tests/control/test_loop.py), so a study over several seeds runs them once (:func:`replicate_over_seeds`)
 SENSOR_NOISE_FREE = ("mpc_oracle",)
 #: mean NH3 slip limit [ppm] within which a gap counts as closed (Euro VI)
 SLIP_LIMIT_PPM = EURO_VI_NH3_SLIP_LIMIT_PPM
@@ -222,20 +223,29 @@ def slowest_first(tasks: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def replicate_over_seeds(results: list[dict[str, Any]], seeds: tuple[int, ...],
-                         names: tuple[str, ...] = SENSOR_NOISE_FREE) -> list[dict[str, Any]]:
-    """``results`` (episode dicts with ``name``, ``cycle``, ``seed``) with each episode of a controller in
-    ``names`` run under the first seed copied to every other seed of ``seeds`` (marked ``"replicated_from"``); the
-    episodes of the other controllers are kept as they are. A controller of ``names`` already run under a seed keeps
-    that run."""
+                         names: tuple[str, ...] = SENSOR_NOISE_FREE
+                         ) -> tuple[list[dict[str, Any]], list[tuple[str, str]]]:
+    """Copy the episodes of the sensor-noise-free controllers ``names`` from the first seed to the others.
+
+    ``results``: episode dicts with ``name``, ``cycle``, ``seed`` and a KPI ``row`` (or an ``error``). An episode
+    of a controller in ``names`` under ``seeds[0]`` that ran without a failed solve (so no fallback, which reads the
+    noisy observation, ever acted) is copied to every other seed of ``seeds`` that has no run of its own (marked
+    ``"replicated_from"``, its row's ``seed`` set, no trajectory). Returns the results with the copies, and the
+    ``(name, cycle)`` pairs that could not be copied (an error or failed solves under the first seed): the caller
+    runs those under the other seeds."""
     have = {(r["name"], r["cycle"], r["seed"]) for r in results}
-    out = list(results)
+    out, rerun = list(results), []
     for r in results:
-        if r["name"] not in names or r["seed"] != seeds[0]:
+        if r["name"] not in names or r["seed"] != seeds[0] or len(seeds) < 2:
+            continue
+        if "error" in r or float(r.get("row", {}).get("solver_failures") or 0.0) > 0:
+            rerun.append((r["name"], r["cycle"]))
             continue
         for s in seeds[1:]:
             if (r["name"], r["cycle"], s) not in have:
-                out.append({**r, "seed": s, "trajectory": {}, "replicated_from": seeds[0]})
-    return out
+                out.append({**r, "seed": s, "row": {**r["row"], "seed": s}, "trajectory": {},
+                            "replicated_from": seeds[0]})
+    return out, rerun
 
 
 def load_for_control(name: str, info: dict[str, Any]) -> tuple[Any, dict[str, Any]]:

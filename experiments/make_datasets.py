@@ -33,7 +33,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0, help="reset seed of the first episode")
     p.add_argument("--root", type=Path, default=None, help="datasets folder (default: $MINARI_DATASETS_PATH or "
                                                             "Minari's ~/.minari/datasets)")
-    p.add_argument("--quick", action="store_true", help="oracle horizon 10 stages (smoke tests)")
+    p.add_argument("--quick", action="store_true", help="the oracle's quick stages: half of each kind (smoke tests)")
     p.add_argument("--max-steps", type=int, default=None, help="cut episodes short (smoke tests)")
     p.add_argument("--bc-seeds", type=int, nargs="*", default=[0, 1, 2, 3, 4], help="BC training seeds")
     p.add_argument("--ship-bc", action="store_true", help="write the BC policies to --policies")

@@ -43,7 +43,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--merge", type=Path, nargs="+", default=None, help="merge these anchor files into --out")
     p.add_argument("--reference", choices=sorted(REFERENCE_KINDS), default="limit",
                    help="score-100 anchor: the stored clairvoyant limit (default) or the oracle NMPC")
-    p.add_argument("--quick", action="store_true", help="oracle horizon 10 stages (not for the stored anchors)")
+    p.add_argument("--quick", action="store_true", help="the oracle's quick stages (not for the stored anchors)")
     p.add_argument("--max-steps", type=int, default=None, help="cut episodes short (smoke tests only)")
     p.add_argument("--json", type=Path, default=None, help="also write the result here")
     return p.parse_args(argv)

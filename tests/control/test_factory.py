@@ -65,3 +65,20 @@ def test_the_estimator_is_shared_not_hidden(model) -> None:
     twin = NonlinearMPC(mpc.model, horizon=5, stage_steps=4, estimator=mpc.estimator, solver=mpc.solver,
                         solver_options=mpc.solver_options)
     assert twin.estimator is mpc.estimator and np.array_equal(twin.estimator.x_, x)
+
+
+def test_oracle_stages_take_whole_numbers_and_name_the_bad_argument():
+    from control.factory import ORACLE_FINE_STAGES, oracle_stages
+
+    fine = (4,) * ORACLE_FINE_STAGES
+    assert oracle_stages(2, coarse_stage_steps=np.int64(60)) == fine + (60, 60)
+    assert oracle_stages(2.0, coarse_stage_steps=60.0) == fine + (60, 60)
+    assert oracle_stages(0) == fine
+    assert oracle_stages(3, quick=True, coarse_stage_steps=8) == (4,) * (ORACLE_FINE_STAGES // 2) + (8,)
+    assert oracle_stages(1, quick=True) == (4,) * (ORACLE_FINE_STAGES // 2)   # half of one coarse stage: none
+    for bad in (-1, 2.5, True, "4", float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="coarse_stages"):
+            oracle_stages(bad)
+    for bad in (0, 0.5, False, None.__class__):
+        with pytest.raises(ValueError, match="coarse_stage_steps"):
+            oracle_stages(coarse_stage_steps=bad)

@@ -76,29 +76,47 @@ def test_loop_report_shows_kpis_gaps_limit_and_the_ablation_legend() -> None:
 
 
 def test_sensor_noise_free_controllers_do_not_depend_on_the_noise_seed():
-    """The premise of replicate_over_seeds: the oracle's doses are bitwise equal under two sensor-noise seeds."""
+    """The premise of replicate_over_seeds: the oracle's doses and KPIs are bitwise equal under two sensor-noise
+    seeds (while no solve fails)."""
     from control.evaluation import evaluate
     from control.loop import SENSOR_NOISE_FREE, loop_controller
 
     for name in SENSOR_NOISE_FREE:
-        doses = [np.asarray(evaluate(loop_controller(name, None, None, quick=True), cycles=("whtc",), seeds=(s,),
-                                     max_steps=120, record_trajectory=True)[0].trajectory["adblue_g_s"])
-                 for s in (0, 5)]
-        assert np.array_equal(doses[0], doses[1]), name
+        runs = [evaluate(loop_controller(name, None, None, quick=True), cycles=("whtc",), seeds=(s,),
+                         max_steps=120, record_trajectory=True)[0] for s in (0, 5)]
+        assert runs[0].stats["solver_failures"] == 0
+        assert np.array_equal(runs[0].trajectory["adblue_g_s"], runs[1].trajectory["adblue_g_s"]), name
+        assert runs[0].kpis == runs[1].kpis, name
+
+
+def _episode(name, seed, cycle="whtc", **kw):
+    return {"name": name, "cycle": cycle, "seed": seed, "row": {"seed": seed, "x": float(seed), "solver_failures": 0.0},
+            "trajectory": {"t": [0]}, **kw}
 
 
 def test_replicate_over_seeds_copies_only_the_noise_free_controllers():
     from control.loop import replicate_over_seeds
 
-    rows = [{"name": "mpc_oracle", "cycle": "whtc", "seed": 0, "row": {"x": 1.0}, "trajectory": {"t": [0]}},
-            {"name": "lookup_table", "cycle": "whtc", "seed": 0, "row": {"x": 2.0}, "trajectory": {}},
-            {"name": "lookup_table", "cycle": "whtc", "seed": 1, "row": {"x": 3.0}, "trajectory": {}}]
-    out = replicate_over_seeds(rows, (0, 1, 2))
-    oracle = sorted((r["seed"], r["row"]["x"], r.get("replicated_from")) for r in out if r["name"] == "mpc_oracle")
-    assert oracle == [(0, 1.0, None), (1, 1.0, 0), (2, 1.0, 0)]
-    assert sorted(r["seed"] for r in out if r["name"] == "lookup_table") == [0, 1]
+    rows = [_episode("mpc_oracle", 3), _episode("lookup_table", 3), _episode("lookup_table", 1)]
+    out, rerun = replicate_over_seeds(rows, (3, 1, 2))
+    assert rerun == []
+    oracle = [(r["seed"], r["row"]["seed"], r["row"]["x"], r.get("replicated_from")) for r in out
+              if r["name"] == "mpc_oracle"]
+    assert oracle == [(3, 3, 3.0, None), (1, 1, 3.0, 3), (2, 2, 3.0, 3)]   # the KPIs of seed 3, the seed relabelled
+    assert sorted(r["seed"] for r in out if r["name"] == "lookup_table") == [1, 3]
     assert all(r["trajectory"] == {} for r in out if r.get("replicated_from") is not None)
-    assert replicate_over_seeds(rows, (0,)) == rows
+    assert rows[0]["row"]["seed"] == 3                                          # the original is not touched
+    assert replicate_over_seeds(rows, (3,)) == (rows, [])
+
+
+def test_replicate_over_seeds_reruns_a_first_seed_episode_that_failed_or_fell_back():
+    from control.loop import replicate_over_seeds
+
+    failed = _episode("mpc_oracle", 0, "whsc")
+    failed["row"]["solver_failures"] = 2.0
+    rows = [_episode("mpc_oracle", 0), failed, {"name": "mpc_oracle", "cycle": "whtc", "seed": 0, "error": "x"}]
+    out, rerun = replicate_over_seeds(rows[1:], (0, 1))
+    assert out == rows[1:] and sorted(rerun) == [("mpc_oracle", "whsc"), ("mpc_oracle", "whtc")]
 
 
 def test_slowest_first_puts_the_oracle_and_black_box_nmpcs_first_and_keeps_the_order_otherwise():

@@ -41,10 +41,12 @@ def test_oracle_knobs_build_the_oracle_they_name():
     assert _controller("multirate_budget_gain", 1.5, None).slip_budget_gain == pytest.approx(1.5)
     with pytest.raises(ValueError, match="whole numbers"):
         _controller("multirate_horizon", 2.5, None)
-    longer = _controller("multirate_coarse_steps", 120.0, None)
-    assert longer.stage_intervals() == (4,) * ORACLE_FINE_STAGES + (120,) * ORACLE_COARSE_STAGES
+    longer = _controller("multirate_coarse_steps", 240.0, None)
+    assert longer.stage_intervals() == (4,) * ORACLE_FINE_STAGES + (240,) * ORACLE_COARSE_STAGES
     with pytest.raises(ValueError, match="multirate_coarse_steps"):
         _controller("multirate_coarse_steps", 0.5, None)
+    with pytest.raises(ValueError, match="multirate_horizon"):
+        _controller("multirate_horizon", float("inf"), None)
     # the single-rate oracle (the earlier reference) keeps its knobs
     single = _controller("oracle", 300.0, None)
     assert single.stage_intervals() == (4,) * 20 and single.model.safe_slip_ppm == 300.0
