@@ -305,6 +305,8 @@ class ObservationEKF:
         one variance per measured output).
     state_bounds : (lower, upper) the estimate is clipped to (default +/-50 on every state).
     initial_state : ``f(observation) -> x0`` at episode start (default zeros).
+    p0 : the covariance of that initial state (scalar, one variance per state or a matrix; default the identity,
+        :class:`ExtendedKalmanFilter`'s): how far the filter may move a state it cannot yet see well.
 
     Timing: the observation of step k holds the sensor readings ``y_{k-1}`` measured after the interval whose input
     was the applied dose ``u_{k-1}`` under the disturbance measured now. :meth:`make_step` corrects ``x_{k-1}`` with
@@ -316,7 +318,8 @@ class ObservationEKF:
                  measured_obs: Sequence[int] = (3,), process_noise: float | np.ndarray = 1e-3,
                  measurement_noise: float | Sequence[float] = 1e-2,
                  state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
-                 initial_state: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+                 initial_state: Callable[[np.ndarray], np.ndarray] | None = None,
+                 p0: float | np.ndarray = 1.0) -> None:
         self.step = step
         self.signals = signals
         self.measured_output = measured_output
@@ -333,7 +336,7 @@ class ObservationEKF:
         nx = int(step.size1_in(0)) if isinstance(step, ca.Function) else 0
         bounds = state_bounds or (np.full(nx, -50.0), np.full(nx, 50.0))
         self.ekf_ = ExtendedKalmanFilter(step, process_noise, measurement_noise, measured=self.measured_,
-                                         state_bounds=bounds)
+                                         state_bounds=bounds, p0=p0)
         self._u_last: np.ndarray | None = None
 
     @property

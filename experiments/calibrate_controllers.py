@@ -9,6 +9,8 @@ at load steps, a full store slips at the next heat-up. The knob per controller (
 
 * ``identified`` (grey-box NMPC, no preview), ``identified_preview`` (with the cycle preview), ``identified_nh3``
   (with the preview and an EKF that also reads the tailpipe NH3 sensor): the terminal value of stored NH3 [g/mol];
+  ``identified_coverage_p0``: the benchmarked grey-box NMPC (``mpc_identified``) with its EKF's prior variance of the
+  cells' coverage at the episode start (best run with ``--noise-seeds``: it is about robustness to sensor noise);
 * ``lookup_table`` (:class:`control.baselines.LookupTableDosing`): the window level ``anr_scale`` of its ANR map;
 * ``oracle`` (the single-rate first-principles NMPC with the cycle preview, the earlier reference,
   :func:`control.factory.single_rate_oracle_mpc`): the *safe slip* [ppm] that sets its safe coverage, the coverage

@@ -82,3 +82,27 @@ def test_oracle_stages_take_whole_numbers_and_name_the_bad_argument():
     for bad in (0, 0.5, False, None.__class__):
         with pytest.raises(ValueError, match="coarse_stage_steps"):
             oracle_stages(coarse_stage_steps=bad)
+
+
+def test_the_coverage_prior_bounds_what_one_noisy_nh3_reading_does_at_a_cold_start(model) -> None:
+    """At 500 K the NH3 sensor sees the coverage weakly: with the EKF's unit prior one 20 ppm reading of a clean
+    catalyst put 0.12 coverage in the outlet cell (the NMPC then predicted slip and stopped dosing); the coverage prior keeps that
+    reading from moving the estimate far."""
+    def coverage_after_one_reading(p0: float) -> np.ndarray:
+        est = identified_mpc(model, quick=True, coverage_p0=p0).estimator
+        obs = np.array([300.0, 500.0, 0.3, 300.0, -1.0, 0.0])   # NOx in, T in [K], flow, NOx sensor, action, NH3
+        dist = np.array([0.3, 500.0, 300.0, 0.0])
+        est.reset(obs)
+        est.make_step(obs, 0.0, dist)
+        noisy = obs.copy()
+        noisy[3] += 20.0
+        noisy[5] = 20.0                                          # a 20 ppm NH3 reading (sensor noise)
+        return est.make_step(noisy, 0.0, dist)[:model.n_cells]
+
+    wide, tight = coverage_after_one_reading(1.0), coverage_after_one_reading(1e-2)
+    assert np.max(wide) > 0.05
+    assert np.all(tight >= 0.0) and np.max(tight) < 0.01
+    with pytest.raises(ValueError, match="coverage_p0"):
+        identified_mpc(model, coverage_p0=0.0)
+    with pytest.raises(ValueError, match="coverage_p0"):
+        identified_mpc(model, coverage_p0=float("nan"))
