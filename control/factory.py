@@ -171,7 +171,10 @@ ORACLE_RESCUE_OPTIONS: dict[str, Any] = {"ipopt.mu_strategy": "adaptive", "ipopt
 #:   60 (30 s, the earlier value): slips 57.7 on cycle 21;  120 (60 s, horizon 260 s): 0.167 at 5.87, 0, 54 ms
 #:   <- chosen;  240 (120 s, horizon 500 s): 0.175 at 7.61, 0 (1 rescued), 55 ms.
 #: Slip price and storage value were chosen with 30 s coarse stages and not re-chosen with 60 s ones (time).
+#: the control interval of the benchmarks [s]: the environment's default dt (scr_env.envs.config.make_config)
+CONTROL_INTERVAL_S = 0.5
 ORACLE_FINE_STAGES = 10
+ORACLE_FINE_STAGE_STEPS = 4       # 2 s
 ORACLE_COARSE_STAGES = 4
 ORACLE_COARSE_STAGE_STEPS = 120
 #: the oracle NMPC's price of NH3 slip [g AdBlue equivalent per ppm s of tailpipe NH3], time-weighted as the
@@ -368,28 +371,36 @@ def _stage_count(name: str, value: Any, lowest: int) -> int:
     return int(value)
 
 
+def _fine_stages(quick: bool) -> int:
+    """The oracle's number of 2 s stages (``quick``: half, at least one)."""
+    return max(ORACLE_FINE_STAGES // 2, 1) if quick else ORACLE_FINE_STAGES
+
+
 def oracle_stages(coarse_stages: int | None = None, quick: bool = False,
                   coarse_stage_steps: int | None = None) -> tuple[int, ...]:
-    """The oracle's multi-rate stages [control intervals]: :data:`ORACLE_FINE_STAGES` of 4, then ``coarse_stages``
+    """The oracle's multi-rate stages [control intervals]: :data:`ORACLE_FINE_STAGES` of
+    :data:`ORACLE_FINE_STAGE_STEPS`, then ``coarse_stages``
     (default :data:`ORACLE_COARSE_STAGES`) of ``coarse_stage_steps`` (default :data:`ORACLE_COARSE_STAGE_STEPS`);
     ``quick``: half of each count (rounded down: one coarse stage becomes none)."""
     n_coarse = _stage_count("coarse_stages", ORACLE_COARSE_STAGES if coarse_stages is None else coarse_stages, 0)
     steps = _stage_count("coarse_stage_steps",
                          ORACLE_COARSE_STAGE_STEPS if coarse_stage_steps is None else coarse_stage_steps, 1)
-    n_fine = ORACLE_FINE_STAGES
+    n_fine = _fine_stages(quick)
     if quick:
-        n_fine, n_coarse = max(n_fine // 2, 1), n_coarse // 2
-    return (4,) * n_fine + (steps,) * n_coarse
+        n_coarse //= 2
+    return (ORACLE_FINE_STAGE_STEPS,) * n_fine + (steps,) * n_coarse
 
 
 def oracle_description(quick: bool = False) -> str:
     """One line on the reference oracle for reports: what it knows and its stages (``quick``: the quick ones)."""
     stages = oracle_stages(quick=quick)
-    n_fine = stages.count(4)
+    n_fine = _fine_stages(quick)
     coarse = stages[n_fine:]
-    tail = f" and {len(coarse)} of {coarse[0] * 0.5:g} s" if coarse else ""
+    tail = f" and {len(coarse)} of {coarse[0] * CONTROL_INTERVAL_S:g} s" if coarse else ""
+    fine_s = ORACLE_FINE_STAGE_STEPS * CONTROL_INTERVAL_S
     return (f"control.factory.oracle_mpc: the multi-rate oracle NMPC of issue 19 (perfect model, privileged state, "
-            f"cycle preview; {n_fine} stages of 2 s{tail}; slip priced per ppm s with a mean-slip budget tracker); "
+            f"cycle preview; {n_fine} stages of {fine_s:g} s{tail}; slip priced per ppm s with a mean-slip budget "
+            "tracker); "
             "the clairvoyant limit of control.limit is the reference of gap_to_limit")
 
 
@@ -461,12 +472,6 @@ CALIBRATION_KNOBS = {"identified": ("storage_value_g_per_mol", (0.0, 50.0, 100.0
                      "lookup_table": ("anr_scale", tuple(round(1.0 + 0.03 * i, 2) for i in range(11)))}
 
 
-def _whole(kind: str, value: float) -> int:
-    if not (math.isfinite(value) and value == int(value)):
-        raise ValueError(f"{kind} values are whole numbers (stages or control intervals), got {value!r}")
-    return int(value)
-
-
 #: how each kind of :data:`CALIBRATION_KNOBS` that is not a grey-box NMPC is built from its knob value
 _CALIBRATION_BUILDERS: dict[str, Any] = {
     "oracle": lambda v: single_rate_oracle_mpc(safe_slip_ppm=v),
@@ -475,9 +480,9 @@ _CALIBRATION_BUILDERS: dict[str, Any] = {
     "multirate_storage": lambda v: multirate_oracle_mpc(storage_value_g_per_mol=v),
     "multirate_slip_price": lambda v: multirate_oracle_mpc(slip_price_per_ppm_s=v),
     "multirate_budget_gain": lambda v: multirate_oracle_mpc(slip_budget_gain=v),
-    "multirate_horizon": lambda v: multirate_oracle_mpc(coarse_stages=_whole("multirate_horizon", v)),
+    "multirate_horizon": lambda v: multirate_oracle_mpc(coarse_stages=_stage_count("multirate_horizon", v, 0)),
     "multirate_coarse_steps": lambda v: multirate_oracle_mpc(
-        coarse_stage_steps=_whole("multirate_coarse_steps", v)),
+        coarse_stage_steps=_stage_count("multirate_coarse_steps", v, 1)),
     "lookup_table": lambda v: LookupTableDosing(anr_scale=v),
 }
 

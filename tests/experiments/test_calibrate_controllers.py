@@ -27,7 +27,8 @@ def test_choose_reports_none_when_no_value_meets_the_target():
 def test_unknown_controller_is_named():
     with pytest.raises(ValueError, match="controller"):
         _controller("lqr", 1.0, None)
-    assert set(KNOBS) == {"identified", "identified_preview", "identified_nh3", "oracle", "oracle_storage",
+    assert set(KNOBS) == {"identified", "identified_preview", "identified_nh3", "identified_coverage_p0", "oracle",
+                          "oracle_storage",
                           "multirate_safe_slip", "multirate_storage", "multirate_slip_price", "multirate_horizon",
                           "multirate_budget_gain", "multirate_coarse_steps", "lookup_table"}
 
@@ -39,7 +40,7 @@ def test_oracle_knobs_build_the_oracle_they_name():
     assert oracle.stage_intervals() == (4,) * ORACLE_FINE_STAGES + (ORACLE_COARSE_STAGE_STEPS,) * 2
     assert _controller("multirate_slip_price", 2e-4, None).weights.nh3_ppm_s == pytest.approx(2e-4)
     assert _controller("multirate_budget_gain", 1.5, None).slip_budget_gain == pytest.approx(1.5)
-    with pytest.raises(ValueError, match="whole numbers"):
+    with pytest.raises(ValueError, match="multirate_horizon must be a whole number"):
         _controller("multirate_horizon", 2.5, None)
     longer = _controller("multirate_coarse_steps", 240.0, None)
     assert longer.stage_intervals() == (4,) * ORACLE_FINE_STAGES + (240,) * ORACLE_COARSE_STAGES
