@@ -86,8 +86,8 @@ def test_oracle_stages_take_whole_numbers_and_name_the_bad_argument():
 
 def test_the_coverage_prior_bounds_what_one_noisy_nh3_reading_does_at_a_cold_start(model) -> None:
     """At 500 K the NH3 sensor sees the coverage weakly: with the EKF's unit prior one 20 ppm reading of a clean
-    catalyst put 0.12 coverage in the outlet cell (the NMPC then predicted slip and stopped dosing); the coverage prior keeps that
-    reading from moving the estimate far."""
+    catalyst put 0.12 coverage in the outlet cell (the NMPC then predicted slip and stopped dosing); the coverage
+    prior keeps that reading from moving the estimate far."""
     def coverage_after_one_reading(p0: float) -> np.ndarray:
         est = identified_mpc(model, quick=True, coverage_p0=p0).estimator
         obs = np.array([300.0, 500.0, 0.3, 300.0, -1.0, 0.0])   # NOx in, T in [K], flow, NOx sensor, action, NH3
