@@ -18,7 +18,18 @@ surplus    mmol/s    stoichiometric surplus, nh3_flow - nox_flow (the issue's "N
 anr        -         nh3_flow / (nox_flow + 0.05 mmol/s), the ammonia-to-NOx ratio, bounded at idle
 nh3_ppm    ppm       NH3 dosed as a concentration in the exhaust, nh3_flow / flow (before decomposition)
 surplus_ppm ppm      nh3_ppm - nox_ppm
+log_deficit -        log(deficit / (nox_ppm + 20 ppm) + 0.01), deficit = the inlet NOx the dose cannot reduce,
+                     smooth max(nox_ppm - nh3_ppm, 0) (the NOx slip ratio of a fast catalyst, in the NOx output's
+                     log representation)
+log_excess  -        log(excess + 1 ppm), excess = smooth max(nh3_ppm - nox_ppm, 0) [ppm] (the NH3 a fast catalyst
+                     without storage would slip, in the NH3 output's log representation)
 ========== ========= ===================================================================================
+
+The last two are the logarithms of the positive and negative parts of the stoichiometric surplus: with the outputs
+in log form, a model linear in ``surplus_ppm`` predicts that each extra ppm of NH3 removes a fixed *fraction* of the
+remaining NOx, so the marginal NOx benefit of dosing vanishes as conversion rises, while on a hot catalyst it stays
+one ppm per ppm until the NOx is used up (and the excess then slips). These two features let a linear or
+polynomial model express that spill-over (the issue's "stoichiometric-surplus input") without a balance.
 
 None of them is a balance or a rate law: they are the inputs of the black-box models, like the thesis' exp(-a/T).
 Nothing here integrates a signal (an integral of the surplus with desorption would be the grey-box's storage
@@ -53,7 +64,14 @@ LOG_RATIO_FLOOR = 1e-4
 LOG_NH3_FLOOR_PPM = 0.01
 
 FEATURES = ("nox_ppm", "urea", "temp_k", "flow", "exp_t", "nox_flow", "nh3_flow", "surplus", "anr", "nh3_ppm",
-            "surplus_ppm")
+            "surplus_ppm", "log_deficit", "log_excess")
+#: smoothing of the max(., 0) of the deficit / excess features [ppm]: 0.5 (v + sqrt(v^2 + e^2)) is within e/2 of it,
+#: and smooth for the NMPC's derivatives [chosen]
+SURPLUS_SMOOTH_PPM = 2.0
+#: floors of the deficit ratio [-] and of the excess [ppm] inside the logarithms of log_deficit / log_excess [chosen:
+#: a NOx slip ratio of 1 %, about the best conversion in the identification data; 1 ppm, the NH3 sensor's noise]
+DEFICIT_RATIO_FLOOR = 0.01
+EXCESS_FLOOR_PPM = 1.0
 OUTPUT_KINDS = ("ppm", "ratio", "logratio")
 NH3_KINDS = ("ppm", "log")
 
@@ -91,6 +109,15 @@ def feature_values(name: str, adblue_g_s: Any, nox_ppm: Any, temp_k: Any, flow: 
         return nh3_flow / fmax(flow, 0.1) * 1e3
     if name == "surplus_ppm":
         return nh3_flow / fmax(flow, 0.1) * 1e3 - fmax(nox_ppm, 0.0)
+    if name in ("log_deficit", "log_excess"):
+        sqrt, log = (ca.sqrt, ca.log) if sym else (np.sqrt, np.log)
+        v = nh3_flow / fmax(flow, 0.1) * 1e3 - fmax(nox_ppm, 0.0)          # the surplus [ppm]
+        if name == "log_deficit":
+            v = -v
+        part = 0.5 * (v + sqrt(v * v + SURPLUS_SMOOTH_PPM ** 2))
+        if name == "log_excess":
+            return log(part + EXCESS_FLOOR_PPM)
+        return log(part / (fmax(nox_ppm, 0.0) + RATIO_EPS_PPM) + DEFICIT_RATIO_FLOOR)
     raise ValueError(f"unknown feature {name!r}; known: {FEATURES}")
 
 

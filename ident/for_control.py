@@ -59,8 +59,14 @@ VALIDATION_SEED = 18
 DESIGNS = ("open_loop", "edge_seeking")
 #: model inputs: stoichiometric surplus [ppm], inlet NOx [ppm], exp(-a/T) [-], exhaust flow [mol/s]
 CONTROL_FEATURES = ("surplus_ppm", "nox_ppm", "exp_t", "flow")
-#: scale of each feature into order one for the RPEM's polynomial (ppm -> 1e3 ppm; flow mol/s -> 10 mol/s) [chosen]
-RPEM_FEATURE_SCALE = (1e-3, 1e-3, 1.0, 0.1)
+#: scale of each feature into order one for the RPEM's polynomial (ppm -> 1e3 ppm; flow mol/s -> 10 mol/s; the
+#: logarithmic spill-over features as the log outputs) [chosen]
+RPEM_FEATURE_SCALES: dict[str, float] = {"surplus_ppm": 1e-3, "nox_ppm": 1e-3, "exp_t": 1.0, "flow": 0.1,
+                                         "log_deficit": 0.2, "log_excess": 0.2}
+RPEM_FEATURE_SCALE = tuple(RPEM_FEATURE_SCALES[f] for f in CONTROL_FEATURES)
+#: the spill-over features (:mod:`ident.control_relevant`) an RPEM may add to :data:`CONTROL_FEATURES`
+#: (``fit_rpem_for_control(features=CONTROL_FEATURES + SPILL_FEATURES)``)
+SPILL_FEATURES = ("log_deficit", "log_excess")
 #: outputs: log NOx slip ratio and log NH3 ppm (:mod:`ident.control_relevant`), times this scale [chosen]
 RPEM_OUTPUT_SCALE = (0.2, 0.2)
 NOX_KIND, NH3_KIND = "logratio", "log"
@@ -104,23 +110,26 @@ def control_arrays(records: Sequence[Any], features: Sequence[str] = CONTROL_FEA
                                                    nh3_output(nh3_kind, r.y[:, 1])])) for r in records]
 
 
-def rpem_storage_terms(k: int) -> list[str]:
+def rpem_storage_terms(k: int, n_inputs: int = 4) -> list[str]:
     """Candidate regressor of chain ``k`` (1 = NOx, 2 = NH3) of the two-output, one-state-per-chain RPEM: the
     thesis' polynomial in states and inputs extended with products that can express storage (state x input,
     state x input x input, input x input) and derivatives of the exogenous inputs (issue 18); inputs as
-    :data:`CONTROL_FEATURES` (u1 surplus, u2 inlet NOx, u3 exp(-a/T), u4 flow)."""
+    :data:`CONTROL_FEATURES` (u1 surplus, u2 inlet NOx, u3 exp(-a/T), u4 flow). Inputs beyond the fourth (the
+    :data:`SPILL_FEATURES`) add themselves, times the own state and times exp(-a/T)."""
     o, q = f"x{k}", ("x2" if k == 1 else "x1")
-    t = ["1", o, q, "u1", "u2", "u3", "u4", f"{o}*{q}", f"{o}^2", f"{q}^2"]
+    extra = [f"u{j}" for j in range(5, n_inputs + 1)]
+    t = ["1", o, q, "u1", "u2", "u3", "u4", *extra, f"{o}*{q}", f"{o}^2", f"{q}^2"]
     for x in (o, q):
         t += [f"{x}*u{j}" for j in (1, 2, 3, 4)]
     t += ["u1*u3", "u1*u4", "u2*u3", "u2*u4", "u3*u4", f"{o}*u1*u3", f"{o}*u1*u4", f"{q}*u1*u3"]
     t += ["u3'", "u4'", "u2'", f"{o}*u3'", f"{o}*u4'", f"{o}*u2'"]
+    t += [f"{o}*{u}" for u in extra] + [f"{u}*u3" for u in extra]
     return t
 
 
-def paper3_terms(k: int) -> list[str]:
+def paper3_terms(k: int, n_inputs: int = 4) -> list[str]:
     """The ablation's "no storage regressors": the linear regressor of Paper III per chain (states, inputs, 1)."""
-    return ["1", f"x{k}", ("x2" if k == 1 else "x1"), "u1", "u2", "u3", "u4"]
+    return ["1", f"x{k}", ("x2" if k == 1 else "x1"), *[f"u{j}" for j in range(1, n_inputs + 1)]]
 
 
 #: numbers of storage terms per chain the term selection tries, beyond Paper III's linear regressor [chosen]
@@ -148,7 +157,7 @@ def _rpem_ls(terms: list[list[str]], recs: Sequence[tuple[np.ndarray, np.ndarray
     from ident.rpem import RecursivePEM
 
     tmpl = RecursivePEM(n_states=1, terms=terms, sampling_period=dt, alpha=1.0)
-    tmpl._setup(len(CONTROL_FEATURES), 2)
+    tmpl._setup(recs[0][0].shape[1], 2)
     theta = np.zeros(tmpl.structure_.n_params)
     for k in range(2):
         A, b = _equation_error(tmpl, recs, k)
@@ -157,9 +166,10 @@ def _rpem_ls(terms: list[list[str]], recs: Sequence[tuple[np.ndarray, np.ndarray
 
 
 def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, validation: Sequence[Any] | None = None,
-                         multistep_horizon: int = 0, max_nfev: int = 10, ridge: float = 1e-3
-                         ) -> tuple[Any, dict[str, Any]]:
-    """The RPEM for the NMPC: two one-state chains (log NOx slip ratio, log NH3) on :data:`CONTROL_FEATURES`.
+                         multistep_horizon: int = 0, max_nfev: int = 10, ridge: float = 1e-3,
+                         features: Sequence[str] = CONTROL_FEATURES) -> tuple[Any, dict[str, Any]]:
+    """The RPEM for the NMPC: two one-state chains (log NOx slip ratio, log NH3) on ``features``: the four of
+    :data:`CONTROL_FEATURES` first, optionally followed by :data:`SPILL_FEATURES`.
 
     The regressor of each chain is Paper III's linear one (:func:`paper3_terms`) plus, with ``storage_terms``, the
     storage-capable candidates of :func:`rpem_storage_terms` in the order of the thesis' forward selection
@@ -172,14 +182,19 @@ def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, val
     from ident.rpem.multistep import fit_multistep, rpem_from_theta
     from ident.rpem.storage_terms import ols_order
 
-    zs, ys = np.asarray(RPEM_FEATURE_SCALE), np.asarray(RPEM_OUTPUT_SCALE)
-    recs = [(z * zs, y * ys) for z, y in control_arrays(records)]
+    features = tuple(features)
+    if features[:len(CONTROL_FEATURES)] != CONTROL_FEATURES or not set(features[4:]) <= set(SPILL_FEATURES) \
+            or len(set(features)) != len(features):
+        raise ValueError(f"features must be {CONTROL_FEATURES} followed by any of {SPILL_FEATURES}, got {features!r}")
+    m = len(features)
+    zs, ys = np.asarray([RPEM_FEATURE_SCALES[f] for f in features]), np.asarray(RPEM_OUTPUT_SCALE)
+    recs = [(z * zs, y * ys) for z, y in control_arrays(records, features)]
     dt = float(records[0].dt)
-    base = [paper3_terms(k) for k in (1, 2)]
+    base = [paper3_terms(k, m) for k in (1, 2)]
     candidates = [base]
     selection: dict[str, Any] = {}
     if storage_terms:
-        full = [rpem_storage_terms(k) for k in (1, 2)]
+        full = [rpem_storage_terms(k, m) for k in (1, 2)]
         tmpl, _ = _rpem_ls(full, recs, dt, ridge)
         order = []
         for k in range(2):
@@ -194,8 +209,8 @@ def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, val
         if multistep_horizon > 0:
             theta = fit_multistep(tmpl, recs, horizon=int(multistep_horizon), theta0=theta, ridge=1e-5,
                                   max_nfev=max_nfev)
-        model = rpem_from_theta(tmpl, theta, len(CONTROL_FEATURES), 2)
-        info = _rpem_info(terms, zs, ys, multistep_horizon, len(records))
+        model = rpem_from_theta(tmpl, theta, m, 2)
+        info = _rpem_info(terms, zs, ys, multistep_horizon, len(records), features)
         score = np.mean([k_step_fit(model.to_casadi(), info, r, SELECTION_HORIZON) for r in val]) if storage_terms \
             else 0.0
         score = float(score) if np.isfinite(score) else -np.inf
@@ -207,11 +222,11 @@ def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, val
     return model, info
 
 
-def _rpem_info(terms: list[list[str]], zs: np.ndarray, ys: np.ndarray, multistep_horizon: int, n_records: int
-               ) -> dict[str, Any]:
+def _rpem_info(terms: list[list[str]], zs: np.ndarray, ys: np.ndarray, multistep_horizon: int, n_records: int,
+               features: Sequence[str] = CONTROL_FEATURES) -> dict[str, Any]:
     lo = ys * np.log([1e-4, 1e-2]) - 0.2   # log floors of the outputs (ident.control_relevant), a margin below
     hi = ys * np.log([2.0, 5000.0])         # NOx ratio 2, NH3 5000 ppm
-    return {"kind": "rpem", "features": list(CONTROL_FEATURES), "z_mean": [0.0] * len(zs),
+    return {"kind": "rpem", "features": list(features), "z_mean": [0.0] * len(zs),
             "z_scale": (1.0 / zs).tolist(), "y_mean": [0.0, 0.0], "y_scale": (1.0 / ys).tolist(),
             "nox_kind": NOX_KIND, "nh3_kind": NH3_KIND, "state_bounds": [lo.tolist(), hi.tolist()],
             "initial_state": (ys * np.log([1.0, 1e-2])).tolist(), "terms": [list(t) for t in terms],

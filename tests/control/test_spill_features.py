@@ -1,0 +1,71 @@
+"""The spill-over features of identification for control (issue 18): the logarithms of the stoichiometric deficit
+and excess, the same in numpy and CasADi, with the limits they are meant to have, and an RPEM that uses them."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from ident.control_relevant import (
+    DEFICIT_RATIO_FLOOR,
+    EXCESS_FLOOR_PPM,
+    RATIO_EPS_PPM,
+    FeatureMap,
+    feature_values,
+)
+from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+
+FLOW_MOL_S, NOX_PPM, T_K = 5.0, 500.0, 600.0
+
+
+def _dose_g_s(anr: float) -> float:
+    """AdBlue [g/s] that doses ``anr`` times the inlet NOx flow."""
+    return anr * NOX_PPM * 1e-6 * FLOW_MOL_S / NH3_MOL_PER_G_ADBLUE
+
+
+def test_deficit_and_excess_follow_the_spill_over_of_a_fast_catalyst() -> None:
+    anrs = np.array([0.0, 0.5, 0.9, 0.99, 1.01, 1.1, 2.0])
+    deficit = np.array([feature_values("log_deficit", _dose_g_s(a), NOX_PPM, T_K, FLOW_MOL_S) for a in anrs])
+    excess = np.array([feature_values("log_excess", _dose_g_s(a), NOX_PPM, T_K, FLOW_MOL_S) for a in anrs])
+    assert np.all(np.diff(deficit) < 0) and np.all(np.diff(excess) > 0)
+    # below ANR 1 the deficit is the NOx slip ratio of a catalyst that converts every ppm of NH3
+    expect = np.log((1 - 0.5) * NOX_PPM / (NOX_PPM + RATIO_EPS_PPM) + DEFICIT_RATIO_FLOOR)
+    assert deficit[1] == pytest.approx(expect, abs=1e-3)
+    assert deficit[-1] == pytest.approx(np.log(DEFICIT_RATIO_FLOOR), abs=1e-3)       # NOx used up: the floor
+    assert excess[0] == pytest.approx(np.log(EXCESS_FLOOR_PPM), abs=1e-2)             # nothing to spill
+    assert excess[-1] == pytest.approx(np.log(NOX_PPM + EXCESS_FLOOR_PPM), abs=1e-2)  # ANR 2: the excess slips
+    # the marginal NOx benefit is steepest near ANR 1, where a log-linear model in the surplus flattens out
+    assert (deficit[2] - deficit[3]) / 0.09 > 5 * (deficit[0] - deficit[1]) / 0.5
+
+
+@pytest.mark.parametrize("name", ["log_deficit", "log_excess"])
+def test_spill_features_are_the_same_in_casadi_and_smooth(name: str) -> None:
+    d = ca.SX.sym("d")
+    f = ca.Function("f", [d], [feature_values(name, d, NOX_PPM, T_K, FLOW_MOL_S)])
+    g = ca.Function("g", [d], [ca.jacobian(f(d), d)])
+    for anr in (0.0, 0.7, 1.0, 1.3):
+        assert float(f(_dose_g_s(anr))) == pytest.approx(
+            float(feature_values(name, _dose_g_s(anr), NOX_PPM, T_K, FLOW_MOL_S)), rel=1e-12)
+        assert np.isfinite(float(g(_dose_g_s(anr))))
+    fm = FeatureMap(("surplus_ppm", name))
+    rec = np.array([[NOX_PPM, _dose_g_s(1.2) * 19.5, T_K, FLOW_MOL_S]])   # inlet NOx, urea g/min, T, flow
+    assert fm.from_record(rec).shape == (1, 2)
+
+
+def test_rpem_for_control_takes_the_spill_features_and_checks_the_feature_list() -> None:
+    from control.blackbox import black_box_nmpc
+    from control.evaluation import cycle_segment, evaluate
+    from ident.for_control import CONTROL_FEATURES, SPILL_FEATURES, fit_rpem_for_control, identification_records
+
+    records = identification_records(seeds=(10,), duration_s=240.0)
+    model, info = fit_rpem_for_control(records, features=CONTROL_FEATURES + SPILL_FEATURES)
+    assert info["features"] == [*CONTROL_FEATURES, *SPILL_FEATURES] and len(info["z_scale"]) == 6
+    assert all("u5" in t and "u6" in t for t in info["terms"])                # Paper III's linear terms in them
+    mpc = black_box_nmpc(model, info, quick=True)
+    k = evaluate(mpc, cycles=(cycle_segment("whtc", 20.0, name="whtc_0-20s"),), seeds=(0,),
+                 env_kwargs=mpc.env_kwargs)[0].kpis
+    assert np.isfinite(k["tailpipe_nox_g_per_kwh"]) and k["adblue_g"] > 0 and mpc.stats()["solves"] == 40
+    with pytest.raises(ValueError, match="features"):
+        fit_rpem_for_control(records, features=("nox_ppm", "surplus_ppm", "exp_t", "flow"))
+    with pytest.raises(ValueError, match="features"):
+        fit_rpem_for_control(records, features=(*CONTROL_FEATURES, "temp_k"))
