@@ -52,7 +52,7 @@ def test_spill_features_are_the_same_in_casadi_and_smooth(name: str) -> None:
     assert fm.from_record(rec).shape == (1, 2)
 
 
-def test_rpem_for_control_takes_the_spill_features_and_checks_the_feature_list() -> None:
+def test_rpem_for_control_takes_the_spill_features_and_its_nmpc_an_interior_point_solver() -> None:
     from control.blackbox import black_box_nmpc
     from control.evaluation import cycle_segment, evaluate
     from ident.for_control import CONTROL_FEATURES, SPILL_FEATURES, fit_rpem_for_control, identification_records
@@ -61,7 +61,10 @@ def test_rpem_for_control_takes_the_spill_features_and_checks_the_feature_list()
     model, info = fit_rpem_for_control(records, features=CONTROL_FEATURES + SPILL_FEATURES)
     assert info["features"] == [*CONTROL_FEATURES, *SPILL_FEATURES] and len(info["z_scale"]) == 6
     assert all("u5" in t and "u6" in t for t in info["terms"])                # Paper III's linear terms in them
-    mpc = black_box_nmpc(model, info, quick=True)
+    mpc = black_box_nmpc(model, info, quick=True, solver="ipopt")
+    assert mpc.solver == "ipopt" and black_box_nmpc(model, info, quick=True).solver == "sqpmethod"
+    with pytest.raises(ValueError, match="solver"):
+        black_box_nmpc(model, info, quick=True, solver="newton")
     k = evaluate(mpc, cycles=(cycle_segment("whtc", 20.0, name="whtc_0-20s"),), seeds=(0,),
                  env_kwargs=mpc.env_kwargs)[0].kpis
     assert np.isfinite(k["tailpipe_nox_g_per_kwh"]) and k["adblue_g"] > 0 and mpc.stats()["solves"] == 40
