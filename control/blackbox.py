@@ -520,6 +520,10 @@ NMPC_SETTINGS: dict[str, dict[str, Any]] = {
     #                       1.0: 0.799 at 17.2;  0.8 + nox_weight 30: 0.699 at 18.7;
     #                       band release (band_release_ppm 2-5, unfiltered sensor): 0.817-1.059 at 0.04-16.9;
     #                       online adaptation (control.online_rpem; gated, + band 0.8): 1.309 at 35.5 (off).
+    #   multi-step fit with the spill-over features (ident.for_control.SPILL_FEATURES; --rpem-fit '{...,
+    #   "features": [...]}'), not kept: SQP solver (48-90 % failed solves) band 0.8: 1.513 at 41.3; none: 2.436 at
+    #   0.08; 0.9: 1.344 at 47.0; 1.0: 1.088 at 16.2;  "solver": "ipopt" (2-26 % failed): band 0.8: 1.092 at 7.62;
+    #   none: 1.278 at 0.04 (2026-11-27).
     "rpem": {"disturbance": "state", "q_state": 1e-4, "q_dist": (1e-5, 1e-5), "r_sensor": (25.0, 4.0),
              "terminal_s": 120.0, "anr_band_hi": 6.0, "anr_band_lo": 0.8},
     # Hammerstein-Wiener: q_dist (0.4, 0.1) ppm^2 per step chosen by ``python -m experiments.calibrate_black_box

@@ -19,11 +19,19 @@
    NMPCs with one ingredient removed in turn (:func:`control.loop.ablation_controllers`).
 
 Results: JSON, a markdown report and figures in ``runs/identify_then_control/<stamp>/`` (``--out`` to choose).
+
+Scheduling (local worker processes, ``--workers`` >= 2): the identification runs in this process while the worker
+pool already fits the grey-box model (saved to the run folder, read back from its file) and runs the episodes that
+need no identified model (look-up table, PI, the oracle, the RL policies; slowest first); the NMPCs on the
+identified models join the same pool as soon as their models exist. With Ray or one worker the steps run one
+after the other.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import time
+from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -72,29 +80,80 @@ def episode(name: str, trace_index: int, seed: int, models: dict[str, Any], quic
             "wall_time_s": time.perf_counter() - t0}
 
 
+#: the loop's controllers that need no identified model (with the RL policies): they can run while identifying
+MODEL_FREE = ("lookup_table", "pi", "mpc_oracle")
+
+
+def greybox_job(out: str) -> tuple[str, dict[str, Any]]:
+    """The grey-box identification (:func:`control.factory.greybox_record`) in a worker process: the model is saved
+    to ``out/model_greybox`` and its file path returned with the JSON record (no model object crosses processes)."""
+    greybox, gb = greybox_record()
+    return str(greybox.save(Path(out) / "model_greybox")), gb
+
+
+def _episode_task(task: dict[str, Any]) -> dict[str, Any]:
+    return episode(**task)
+
+
+def _identify_overlapped(out: Path, quick: bool, ablation: bool, first: list[dict[str, Any]], rl: list[str],
+                         workers: int) -> tuple[dict[str, Any], dict[str, Any], list[dict[str, Any]]]:
+    """(identification record, models, results of ``first``): the identification in this process, the grey-box fit
+    and the model-free episodes in a pool of ``workers`` processes meanwhile, then the model episodes (module
+    docstring). ``first``'s tasks get their ``models`` here."""
+    free = [t for t in first if t["name"] in MODEL_FREE or t["name"] in rl]
+    rest = [t for t in first if not (t["name"] in MODEL_FREE or t["name"] in rl)]
+    futures: dict[int, Future] = {}
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        gb_future = pool.submit(greybox_job, str(out))
+        for t in slowest_first(free):
+            t["models"] = {"greybox": None, "black_box": None}
+            futures[id(t)] = pool.submit(_episode_task, dict(t))
+        black_box = identify_for_control(out, quick=quick, ablation=ablation)
+        gb_path, gb = gb_future.result()
+        models = {"greybox": gb_path, "black_box": black_box}
+        for t in slowest_first(rest):
+            t["models"] = models
+            futures[id(t)] = pool.submit(_episode_task, dict(t))
+        print(f"  identified; {len(free)} model-free episodes started during it, {len(rest)} NMPC episodes on the "
+              "identified models queued", flush=True)
+        results = []
+        for i, t in enumerate(first):
+            results.append(futures[id(t)].result())
+            print(f"  episode {i + 1}/{len(first)}: {t['name']} done", flush=True)
+    return {"greybox": gb, "black_box": black_box}, models, results
+
+
 def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, Any] | None = None,
         include_rl: bool = True, json_path: Path | None = None, seeds: tuple[int, ...] = (0,),
         ablation: bool = False) -> dict[str, Any]:
     """The whole loop; returns the JSON document (also written with the report into ``out``)."""
     out = run_folder("identify_then_control", json_path=json_path, folder=out)
     start = time.perf_counter()
-    print("1-2. excitation experiments and identification ...", flush=True)
-    greybox, gb = greybox_record()
-    ident = {"greybox": gb, "black_box": identify_for_control(out, quick=quick, ablation=ablation)}
-    models = {"greybox": str(greybox.save(out / "model_greybox")), "black_box": ident["black_box"]}
-    for n, m in ident["black_box"]["models"].items():
-        print(f"  {n}: " + (m["error"] if "error" in m else f"k-step FIT {m['validation_kstep_fit_percent']}"))
     rl, rl_note = available_rl() if include_rl else ([], "RL policies not requested")
     names = ["lookup_table", "mpc_oracle", "mpc_greybox", *[f"mpc_{m}" for m in BLACK_BOX], "pi", *rl]
     names += ablation_controllers(quick=quick) if ablation else []
     traces = held_out(quick)
-    tasks = [{"name": n, "trace_index": i, "seed": int(s), "models": models, "quick": quick, "record": s == seeds[0]}
+    tasks = [{"name": n, "trace_index": i, "seed": int(s), "models": None, "quick": quick, "record": s == seeds[0]}
              for s in seeds for n in names for i in range(len(traces))]
     first = [t for t in tasks if t["seed"] == seeds[0] or t["name"] not in SENSOR_NOISE_FREE]
-    print(f"3-4. {len(tasks)} closed-loop episodes on {', '.join(t.name for t in traces)}, seeds {list(seeds)} ...",
-          flush=True)
-    results, rerun = replicate_over_seeds(
-        run_sweep(episode, slowest_first(first), description="closed loop", **(sweep_kwargs or {})), seeds)
+    kw = dict(sweep_kwargs or {})
+    workers = int(kw.get("workers") or os.cpu_count() or 1)
+    print(f"1-4. excitation experiments, identification and {len(tasks)} closed-loop episodes on "
+          f"{', '.join(t.name for t in traces)}, seeds {list(seeds)} ...", flush=True)
+    if kw.get("backend", "local") == "local" and workers >= 2:
+        ident, models, done = _identify_overlapped(out, quick, ablation, first, rl, workers)
+    else:
+        greybox, gb = greybox_record()
+        ident = {"greybox": gb, "black_box": identify_for_control(out, quick=quick, ablation=ablation)}
+        models = {"greybox": str(greybox.save(out / "model_greybox")), "black_box": ident["black_box"]}
+        for t in tasks:
+            t["models"] = models
+        done = run_sweep(episode, slowest_first(first), description="closed loop", **kw)
+    for t in tasks:
+        t["models"] = models
+    for n, m in ident["black_box"]["models"].items():
+        print(f"  {n}: " + (m["error"] if "error" in m else f"k-step FIT {m['validation_kstep_fit_percent']}"))
+    results, rerun = replicate_over_seeds(done, seeds)
     again = [t for t in tasks if (t["name"], traces[t["trace_index"]].name) in rerun and t["seed"] != seeds[0]]
     results += run_sweep(episode, again, description="closed loop (rerun)", **(sweep_kwargs or {})) if again else []
     results.sort(key=lambda r: (names.index(r["name"]), seeds.index(r["seed"])))

@@ -1,0 +1,46 @@
+"""experiments.identify_then_control's scheduling: the model-free episodes run while the models are identified, the
+NMPC episodes get the identified models, and the results come back in the task order."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import experiments.identify_then_control as itc
+
+
+class _FakeGreyBox:
+    def save(self, path: Path) -> Path:
+        path.with_suffix(".json").write_text("{}", encoding="utf-8")
+        return path.with_suffix(".json")
+
+
+def _fake_episode(name: str, trace_index: int, seed: int, models: dict[str, Any], quick: bool,
+                  record: bool = False) -> dict[str, Any]:
+    return {"name": name, "cycle": f"c{trace_index}", "seed": seed, "finished": time.time(),
+            "greybox": models["greybox"], "black_box": models["black_box"]}
+
+
+def test_model_free_episodes_run_during_identification_and_nmpcs_get_the_models(tmp_path, monkeypatch) -> None:
+    stamps: dict[str, float] = {}
+
+    def identify(out, quick, ablation):
+        time.sleep(1.5)                              # the identification takes a while ...
+        stamps["identified"] = time.time()
+        return {"models": {"rpem": {"path": "x"}}}
+
+    monkeypatch.setattr(itc, "identify_for_control", identify)
+    monkeypatch.setattr(itc, "greybox_record", lambda: (_FakeGreyBox(), {"params": [1.0]}))
+    monkeypatch.setattr(itc, "episode", _fake_episode)
+    names = ["lookup_table", "mpc_oracle", "mpc_greybox", "mpc_rpem", "pi", "ppo"]
+    first = [{"name": n, "trace_index": i, "seed": 0, "models": None, "quick": True, "record": True}
+             for n in names for i in range(2)]
+    ident, models, results = itc._identify_overlapped(tmp_path, True, False, first, ["ppo"], workers=2)
+    assert ident["greybox"] == {"params": [1.0]} and ident["black_box"] == {"models": {"rpem": {"path": "x"}}}
+    assert Path(models["greybox"]).parent == tmp_path
+    assert [(r["name"], r["cycle"]) for r in results] == [(t["name"], f"c{t['trace_index']}") for t in first]
+    for r in results:
+        if r["name"] in ("lookup_table", "mpc_oracle", "pi", "ppo"):   # ... and these ran meanwhile
+            assert r["finished"] < stamps["identified"] and r["black_box"] is None
+        else:
+            assert r["black_box"] == ident["black_box"] and r["greybox"] == models["greybox"]
