@@ -328,6 +328,7 @@ class ObservationEKF:
         self.measurement_noise = measurement_noise
         self.state_bounds = state_bounds
         self.initial_state = initial_state
+        self.p0 = p0
         self.measured_ = ([int(measured_output)] if np.ndim(measured_output) == 0
                           else [int(k) for k in measured_output])
         if len(self.measured_obs) != len(self.measured_):

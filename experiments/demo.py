@@ -9,7 +9,7 @@
    loop on the first 600 s of the held-out WHTC against the baselines, the oracle NMPC and the shipped RL policies.
 
 Writes ``runs/demo/<stamp>/report.md`` with the tables and PNG figures, and prints where it is. The full
-identify-then-control study: ``python -m experiments.identify_then_control`` (about half an hour on 2 cores).
+identify-then-control study: ``python -m experiments.identify_then_control`` (about 14 minutes on 2 cores).
 """
 from __future__ import annotations
 

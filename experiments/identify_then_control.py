@@ -24,7 +24,8 @@ Scheduling (local worker processes, ``--workers`` >= 2): the identification runs
 pool already fits the grey-box model (saved to the run folder, read back from its file) and runs the episodes that
 need no identified model (look-up table, PI, the oracle, the RL policies; slowest first); the NMPCs on the
 identified models join the same pool as soon as their models exist. With Ray or one worker the steps run one
-after the other.
+after the other. While identifying, the main process and the pool's workers share the cores, so the timings of
+those episodes (solve times, the grey-box fit time) are measured under that load; the KPIs do not depend on it.
 """
 from __future__ import annotations
 
@@ -103,7 +104,8 @@ def _identify_overlapped(out: Path, quick: bool, ablation: bool, first: list[dic
     free = [t for t in first if t["name"] in MODEL_FREE or t["name"] in rl]
     rest = [t for t in first if not (t["name"] in MODEL_FREE or t["name"] in rl)]
     futures: dict[int, Future] = {}
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    pool = ProcessPoolExecutor(max_workers=workers)
+    try:
         gb_future = pool.submit(greybox_job, str(out))
         for t in slowest_first(free):
             t["models"] = {"greybox": None, "black_box": None}
@@ -120,6 +122,11 @@ def _identify_overlapped(out: Path, quick: bool, ablation: bool, first: list[dic
         for i, t in enumerate(first):
             results.append(futures[id(t)].result())
             print(f"  episode {i + 1}/{len(first)}: {t['name']} done", flush=True)
+    except BaseException:
+        # a failed identification (or a broken worker, or Ctrl-C) ends the run now: queued episodes are cancelled
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
     return {"greybox": gb, "black_box": black_box}, models, results
 
 
@@ -137,7 +144,10 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
              for s in seeds for n in names for i in range(len(traces))]
     first = [t for t in tasks if t["seed"] == seeds[0] or t["name"] not in SENSOR_NOISE_FREE]
     kw = dict(sweep_kwargs or {})
-    workers = int(kw.get("workers") or os.cpu_count() or 1)
+    workers = kw.get("workers")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    workers = workers or os.cpu_count() or 1
     print(f"1-4. excitation experiments, identification and {len(tasks)} closed-loop episodes on "
           f"{', '.join(t.name for t in traces)}, seeds {list(seeds)} ...", flush=True)
     if kw.get("backend", "local") == "local" and workers >= 2:

@@ -110,12 +110,20 @@ def control_arrays(records: Sequence[Any], features: Sequence[str] = CONTROL_FEA
                                                    nh3_output(nh3_kind, r.y[:, 1])])) for r in records]
 
 
+def _check_inputs(n_inputs: int) -> None:
+    if isinstance(n_inputs, bool) or not isinstance(n_inputs, (int, np.integer)) \
+            or not len(CONTROL_FEATURES) <= n_inputs <= len(CONTROL_FEATURES) + len(SPILL_FEATURES):
+        raise ValueError(f"n_inputs must be {len(CONTROL_FEATURES)} (CONTROL_FEATURES) to "
+                         f"{len(CONTROL_FEATURES) + len(SPILL_FEATURES)} (with SPILL_FEATURES), got {n_inputs!r}")
+
+
 def rpem_storage_terms(k: int, n_inputs: int = 4) -> list[str]:
     """Candidate regressor of chain ``k`` (1 = NOx, 2 = NH3) of the two-output, one-state-per-chain RPEM: the
     thesis' polynomial in states and inputs extended with products that can express storage (state x input,
     state x input x input, input x input) and derivatives of the exogenous inputs (issue 18); inputs as
     :data:`CONTROL_FEATURES` (u1 surplus, u2 inlet NOx, u3 exp(-a/T), u4 flow). Inputs beyond the fourth (the
     :data:`SPILL_FEATURES`) add themselves, times the own state and times exp(-a/T)."""
+    _check_inputs(n_inputs)
     o, q = f"x{k}", ("x2" if k == 1 else "x1")
     extra = [f"u{j}" for j in range(5, n_inputs + 1)]
     t = ["1", o, q, "u1", "u2", "u3", "u4", *extra, f"{o}*{q}", f"{o}^2", f"{q}^2"]
@@ -129,6 +137,7 @@ def rpem_storage_terms(k: int, n_inputs: int = 4) -> list[str]:
 
 def paper3_terms(k: int, n_inputs: int = 4) -> list[str]:
     """The ablation's "no storage regressors": the linear regressor of Paper III per chain (states, inputs, 1)."""
+    _check_inputs(n_inputs)
     return ["1", f"x{k}", ("x2" if k == 1 else "x1"), *[f"u{j}" for j in range(1, n_inputs + 1)]]
 
 
@@ -183,8 +192,9 @@ def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, val
     from ident.rpem.storage_terms import ols_order
 
     features = tuple(features)
-    if features[:len(CONTROL_FEATURES)] != CONTROL_FEATURES or not set(features[4:]) <= set(SPILL_FEATURES) \
-            or len(set(features)) != len(features):
+    n0 = len(CONTROL_FEATURES)
+    if features[:n0] != CONTROL_FEATURES or any(f not in SPILL_FEATURES for f in features[n0:]) \
+            or len(set(map(str, features))) != len(features):
         raise ValueError(f"features must be {CONTROL_FEATURES} followed by any of {SPILL_FEATURES}, got {features!r}")
     m = len(features)
     zs, ys = np.asarray([RPEM_FEATURE_SCALES[f] for f in features]), np.asarray(RPEM_OUTPUT_SCALE)

@@ -8,6 +8,7 @@ from control.baselines import FeedforwardPI, LookupTableDosing
 from control.estimation import ObservationEKF, PrivilegedState
 from control.factory import (
     CONTROLLERS,
+    IDENTIFIED_COVERAGE_P0,
     IDENTIFIED_VARIANTS,
     identified_mpc,
     make_controller,
@@ -100,9 +101,21 @@ def test_the_coverage_prior_bounds_what_one_noisy_nh3_reading_does_at_a_cold_sta
         return est.make_step(noisy, 0.0, dist)[:model.n_cells]
 
     wide, tight = coverage_after_one_reading(1.0), coverage_after_one_reading(1e-2)
-    assert np.max(wide) > 0.05
-    assert np.all(tight >= 0.0) and np.max(tight) < 0.01
+    assert np.max(wide) > 0.05 and np.max(tight) < 0.01
+    # the default is the calibrated prior on every cell (the temperature state keeps 1 K^2)
+    est = identified_mpc(model, quick=True).estimator
+    est.reset(np.array([300.0, 500.0, 0.3, 300.0, -1.0, 0.0]))
+    assert np.allclose(np.diag(est.ekf_.P_), [IDENTIFIED_COVERAGE_P0] * model.n_cells + [1.0])
+    assert np.max(coverage_after_one_reading(IDENTIFIED_COVERAGE_P0)) < np.max(tight)
     with pytest.raises(ValueError, match="coverage_p0"):
         identified_mpc(model, coverage_p0=0.0)
-    with pytest.raises(ValueError, match="coverage_p0"):
-        identified_mpc(model, coverage_p0=float("nan"))
+    for bad in (float("nan"), True, "0.001", -1e-3):
+        with pytest.raises(ValueError, match="coverage_p0"):
+            identified_mpc(model, coverage_p0=bad)
+
+
+def test_the_control_interval_is_the_environments() -> None:
+    from control.factory import CONTROL_INTERVAL_S
+    from scr_env.envs.config import make_config
+
+    assert make_config().dt == CONTROL_INTERVAL_S

@@ -63,8 +63,9 @@ def test_rpem_for_control_takes_the_spill_features_and_its_nmpc_an_interior_poin
     assert all("u5" in t and "u6" in t for t in info["terms"])                # Paper III's linear terms in them
     mpc = black_box_nmpc(model, info, quick=True, solver="ipopt")
     assert mpc.solver == "ipopt" and black_box_nmpc(model, info, quick=True).solver == "sqpmethod"
-    with pytest.raises(ValueError, match="solver"):
-        black_box_nmpc(model, info, quick=True, solver="newton")
+    for bad in ("newton", ["ipopt"], None):
+        with pytest.raises(ValueError, match="solver"):
+            black_box_nmpc(model, info, quick=True, solver=bad)
     k = evaluate(mpc, cycles=(cycle_segment("whtc", 20.0, name="whtc_0-20s"),), seeds=(0,),
                  env_kwargs=mpc.env_kwargs)[0].kpis
     assert np.isfinite(k["tailpipe_nox_g_per_kwh"]) and k["adblue_g"] > 0 and mpc.stats()["solves"] == 40
@@ -72,3 +73,30 @@ def test_rpem_for_control_takes_the_spill_features_and_its_nmpc_an_interior_poin
         fit_rpem_for_control(records, features=("nox_ppm", "surplus_ppm", "exp_t", "flow"))
     with pytest.raises(ValueError, match="features"):
         fit_rpem_for_control(records, features=(*CONTROL_FEATURES, "temp_k"))
+
+
+def test_term_generators_name_a_bad_input_count() -> None:
+    from ident.for_control import paper3_terms, rpem_storage_terms
+
+    assert paper3_terms(1) == ["1", "x1", "x2", "u1", "u2", "u3", "u4"]
+    assert "x2*u6" in rpem_storage_terms(2, 6) and "u5*u3" in rpem_storage_terms(1, 5)
+    for bad in (2, 7, True):
+        with pytest.raises(ValueError, match="n_inputs"):
+            paper3_terms(1, bad)
+        with pytest.raises(ValueError, match="n_inputs"):
+            rpem_storage_terms(1, bad)
+
+
+def test_spill_features_match_a_finite_difference_across_anr_one() -> None:
+    d = ca.SX.sym("d")
+    for name in ("log_deficit", "log_excess"):
+        jac = ca.Function("j", [d], [ca.jacobian(feature_values(name, d, NOX_PPM, T_K, FLOW_MOL_S), d)])
+        for anr in (0.99, 1.0, 1.01):
+            u, h = _dose_g_s(anr), 1e-7
+            fd = (feature_values(name, u + h, NOX_PPM, T_K, FLOW_MOL_S)
+                  - feature_values(name, u - h, NOX_PPM, T_K, FLOW_MOL_S)) / (2 * h)
+            assert float(jac(u)) == pytest.approx(fd, rel=1e-4)
+    doses = np.array([0.0, _dose_g_s(1.0), 50.0])                  # vectorised, up to a far over-dose
+    for name in ("log_deficit", "log_excess"):
+        v = feature_values(name, doses, np.array([0.0, NOX_PPM, 2000.0]), T_K, np.array([0.0, FLOW_MOL_S, 20.0]))
+        assert v.shape == (3,) and np.all(np.isfinite(v))

@@ -2,11 +2,18 @@
 NMPC episodes get the identified models, and the results come back in the task order."""
 from __future__ import annotations
 
+import multiprocessing
 import time
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 import experiments.identify_then_control as itc
+
+# the stubs reach the worker processes because they are forked from this one (Linux's default start method)
+pytestmark = pytest.mark.skipif(multiprocessing.get_start_method() != "fork",
+                                reason="the stubbed functions reach the workers only through fork")
 
 
 class _FakeGreyBox:
@@ -44,3 +51,29 @@ def test_model_free_episodes_run_during_identification_and_nmpcs_get_the_models(
             assert r["finished"] < stamps["identified"] and r["black_box"] is None
         else:
             assert r["black_box"] == ident["black_box"] and r["greybox"] == models["greybox"]
+
+
+def test_a_failed_identification_ends_the_run_without_waiting_for_the_queued_episodes(tmp_path, monkeypatch) -> None:
+    def identify(out, quick, ablation):
+        raise RuntimeError("identification failed")
+
+    def slow_episode(**task: Any) -> dict[str, Any]:
+        time.sleep(1.0)
+        return {"name": task["name"]}
+
+    monkeypatch.setattr(itc, "identify_for_control", identify)
+    monkeypatch.setattr(itc, "greybox_record", lambda: (_FakeGreyBox(), {}))
+    monkeypatch.setattr(itc, "episode", slow_episode)
+    first = [{"name": "mpc_oracle", "trace_index": 0, "seed": s, "models": None, "quick": True, "record": False}
+             for s in range(30)]                                   # 15 s of queued work on 2 workers
+    t0 = time.time()
+    with pytest.raises(RuntimeError, match="identification failed"):
+        itc._identify_overlapped(tmp_path, True, False, first, [], workers=2)
+    assert time.time() - t0 < 10.0
+
+
+@pytest.mark.parametrize("workers", [0, -1, 1.5, True])
+def test_bad_worker_counts_are_refused_before_identifying(tmp_path, monkeypatch, workers) -> None:
+    monkeypatch.setattr(itc, "identify_for_control", lambda *a, **k: pytest.fail("identified anyway"))
+    with pytest.raises(ValueError, match="workers"):
+        itc.run(quick=True, out=tmp_path, include_rl=False, sweep_kwargs={"backend": "local", "workers": workers})
