@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +26,8 @@ from scr_env.constants import EURO_VI_NH3_SLIP_LIMIT_PPM
 
 __all__ = ["ADDITIONS", "BLACK_BOX", "SENSOR_NOISE_FREE", "ablation_controllers", "black_box_excitation",
            "closed_loop_identification", "gap_closed", "gap_closed_over_seeds", "gap_to_limit_over_seeds",
-           "held_out", "identify_for_control", "load_for_control", "loop_controller", "replicate_over_seeds",
-           "slowest_first"]
+           "held_out", "identify_for_control", "identify_while_running", "load_for_control", "loop_controller",
+           "replicate_over_seeds", "slowest_first"]
 
 #: the black-box model kinds of the loop
 BLACK_BOX = ("rpem", "hammerstein_wiener")
@@ -386,3 +387,63 @@ def gap_closed(kpis: dict[str, dict[str, dict[str, float]]]) -> tuple[dict[str, 
                 excluded.append({"model": name[4:], "cycle": cycle, "raw_fraction": float(val),
                                  "mean_nh3_slip_ppm": float(slip), "reason": reason})
     return out, excluded
+
+
+# ------------------------------------------------------------------------------------------ overlapped scheduling
+#: the loop's controllers that need no identified model (with the RL policies): they can run while identifying
+MODEL_FREE = ("lookup_table", "pi", "mpc_oracle")
+
+
+def greybox_job(out: str) -> tuple[str, dict[str, Any]]:
+    """The grey-box identification (:func:`control.factory.greybox_record`) in a worker process: the model is saved
+    to ``out/model_greybox`` and its file path returned with the JSON record (no model object crosses processes)."""
+    from control.factory import greybox_record
+
+    greybox, gb = greybox_record()
+    return str(greybox.save(Path(out) / "model_greybox")), gb
+
+
+def _call_episode(episode: Callable[..., dict[str, Any]], task: dict[str, Any]) -> dict[str, Any]:
+    return episode(**task)
+
+
+def identify_while_running(episode: Callable[..., dict[str, Any]], out: Path, quick: bool, ablation: bool,
+                           first: list[dict[str, Any]], rl: Sequence[str], workers: int
+                           ) -> tuple[dict[str, Any], dict[str, Any], list[dict[str, Any]]]:
+    """Identify while the episodes that need no model run: ``(identification record, models, results of first)``.
+
+    :func:`identify_for_control` runs in this process while a pool of ``workers`` processes fits the grey-box model
+    (:func:`greybox_job`) and runs the tasks of ``first`` whose controller is in :data:`MODEL_FREE` or ``rl``
+    (slowest first); the NMPC tasks join the pool once the models exist (``models``: the grey-box file and the
+    black-box record, set on each task). ``episode(**task)`` is a module-level function (it is sent to the workers).
+    Results come back in the order of ``first``. A failure (identification, a broken worker, Ctrl-C) cancels the
+    queued episodes and re-raises at once. While identifying, this process and the workers share the cores: the
+    timings of those episodes are measured under that load (their KPIs are not)."""
+    from concurrent.futures import Future, ProcessPoolExecutor
+
+    free = [t for t in first if t["name"] in MODEL_FREE or t["name"] in rl]
+    rest = [t for t in first if not (t["name"] in MODEL_FREE or t["name"] in rl)]
+    futures: dict[int, Future] = {}
+    pool = ProcessPoolExecutor(max_workers=workers)
+    try:
+        gb_future = pool.submit(greybox_job, str(out))
+        for t in slowest_first(free):
+            t["models"] = {"greybox": None, "black_box": None}
+            futures[id(t)] = pool.submit(_call_episode, episode, dict(t))
+        black_box = identify_for_control(out, quick=quick, ablation=ablation)
+        gb_path, gb = gb_future.result()
+        models = {"greybox": gb_path, "black_box": black_box}
+        for t in slowest_first(rest):
+            t["models"] = models
+            futures[id(t)] = pool.submit(_call_episode, episode, dict(t))
+        print(f"  identified; {len(free)} model-free episodes started during it, {len(rest)} NMPC episodes on the "
+              "identified models queued", flush=True)
+        results = []
+        for i, t in enumerate(first):
+            results.append(futures[id(t)].result())
+            print(f"  episode {i + 1}/{len(first)}: {t['name']} done", flush=True)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+    return {"greybox": gb, "black_box": black_box}, models, results

@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +47,7 @@ from control.loop import (
     gap_to_limit_over_seeds,
     held_out,
     identify_for_control,
+    identify_while_running,
     replicate_over_seeds,
     slowest_first,
 )
@@ -81,55 +81,6 @@ def episode(name: str, trace_index: int, seed: int, models: dict[str, Any], quic
             "wall_time_s": time.perf_counter() - t0}
 
 
-#: the loop's controllers that need no identified model (with the RL policies): they can run while identifying
-MODEL_FREE = ("lookup_table", "pi", "mpc_oracle")
-
-
-def greybox_job(out: str) -> tuple[str, dict[str, Any]]:
-    """The grey-box identification (:func:`control.factory.greybox_record`) in a worker process: the model is saved
-    to ``out/model_greybox`` and its file path returned with the JSON record (no model object crosses processes)."""
-    greybox, gb = greybox_record()
-    return str(greybox.save(Path(out) / "model_greybox")), gb
-
-
-def _episode_task(task: dict[str, Any]) -> dict[str, Any]:
-    return episode(**task)
-
-
-def _identify_overlapped(out: Path, quick: bool, ablation: bool, first: list[dict[str, Any]], rl: list[str],
-                         workers: int) -> tuple[dict[str, Any], dict[str, Any], list[dict[str, Any]]]:
-    """(identification record, models, results of ``first``): the identification in this process, the grey-box fit
-    and the model-free episodes in a pool of ``workers`` processes meanwhile, then the model episodes (module
-    docstring). ``first``'s tasks get their ``models`` here."""
-    free = [t for t in first if t["name"] in MODEL_FREE or t["name"] in rl]
-    rest = [t for t in first if not (t["name"] in MODEL_FREE or t["name"] in rl)]
-    futures: dict[int, Future] = {}
-    pool = ProcessPoolExecutor(max_workers=workers)
-    try:
-        gb_future = pool.submit(greybox_job, str(out))
-        for t in slowest_first(free):
-            t["models"] = {"greybox": None, "black_box": None}
-            futures[id(t)] = pool.submit(_episode_task, dict(t))
-        black_box = identify_for_control(out, quick=quick, ablation=ablation)
-        gb_path, gb = gb_future.result()
-        models = {"greybox": gb_path, "black_box": black_box}
-        for t in slowest_first(rest):
-            t["models"] = models
-            futures[id(t)] = pool.submit(_episode_task, dict(t))
-        print(f"  identified; {len(free)} model-free episodes started during it, {len(rest)} NMPC episodes on the "
-              "identified models queued", flush=True)
-        results = []
-        for i, t in enumerate(first):
-            results.append(futures[id(t)].result())
-            print(f"  episode {i + 1}/{len(first)}: {t['name']} done", flush=True)
-    except BaseException:
-        # a failed identification (or a broken worker, or Ctrl-C) ends the run now: queued episodes are cancelled
-        pool.shutdown(wait=False, cancel_futures=True)
-        raise
-    pool.shutdown()
-    return {"greybox": gb, "black_box": black_box}, models, results
-
-
 def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, Any] | None = None,
         include_rl: bool = True, json_path: Path | None = None, seeds: tuple[int, ...] = (0,),
         ablation: bool = False) -> dict[str, Any]:
@@ -151,7 +102,7 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
     print(f"1-4. excitation experiments, identification and {len(tasks)} closed-loop episodes on "
           f"{', '.join(t.name for t in traces)}, seeds {list(seeds)} ...", flush=True)
     if kw.get("backend", "local") == "local" and workers >= 2:
-        ident, models, done = _identify_overlapped(out, quick, ablation, first, rl, workers)
+        ident, models, done = identify_while_running(episode, out, quick, ablation, first, rl, workers)
     else:
         greybox, gb = greybox_record()
         ident = {"greybox": gb, "black_box": identify_for_control(out, quick=quick, ablation=ablation)}

@@ -9,7 +9,9 @@ from typing import Any
 
 import pytest
 
+import control.factory
 import experiments.identify_then_control as itc
+from control import loop
 
 # the stubs reach the worker processes because they are forked from this one (Linux's default start method)
 pytestmark = pytest.mark.skipif(multiprocessing.get_start_method() != "fork",
@@ -28,6 +30,11 @@ def _fake_episode(name: str, trace_index: int, seed: int, models: dict[str, Any]
             "greybox": models["greybox"], "black_box": models["black_box"]}
 
 
+def _slow_episode(**task: Any) -> dict[str, Any]:
+    time.sleep(1.0)
+    return {"name": task["name"]}
+
+
 def test_model_free_episodes_run_during_identification_and_nmpcs_get_the_models(tmp_path, monkeypatch) -> None:
     stamps: dict[str, float] = {}
 
@@ -36,13 +43,13 @@ def test_model_free_episodes_run_during_identification_and_nmpcs_get_the_models(
         stamps["identified"] = time.time()
         return {"models": {"rpem": {"path": "x"}}}
 
-    monkeypatch.setattr(itc, "identify_for_control", identify)
-    monkeypatch.setattr(itc, "greybox_record", lambda: (_FakeGreyBox(), {"params": [1.0]}))
-    monkeypatch.setattr(itc, "episode", _fake_episode)
+    monkeypatch.setattr(loop, "identify_for_control", identify)
+    monkeypatch.setattr(control.factory, "greybox_record", lambda: (_FakeGreyBox(), {"params": [1.0]}))
     names = ["lookup_table", "mpc_oracle", "mpc_greybox", "mpc_rpem", "pi", "ppo"]
     first = [{"name": n, "trace_index": i, "seed": 0, "models": None, "quick": True, "record": True}
              for n in names for i in range(2)]
-    ident, models, results = itc._identify_overlapped(tmp_path, True, False, first, ["ppo"], workers=2)
+    ident, models, results = loop.identify_while_running(_fake_episode, tmp_path, True, False, first, ["ppo"],
+                                                         workers=2)
     assert ident["greybox"] == {"params": [1.0]} and ident["black_box"] == {"models": {"rpem": {"path": "x"}}}
     assert Path(models["greybox"]).parent == tmp_path
     assert [(r["name"], r["cycle"]) for r in results] == [(t["name"], f"c{t['trace_index']}") for t in first]
@@ -57,18 +64,13 @@ def test_a_failed_identification_ends_the_run_without_waiting_for_the_queued_epi
     def identify(out, quick, ablation):
         raise RuntimeError("identification failed")
 
-    def slow_episode(**task: Any) -> dict[str, Any]:
-        time.sleep(1.0)
-        return {"name": task["name"]}
-
-    monkeypatch.setattr(itc, "identify_for_control", identify)
-    monkeypatch.setattr(itc, "greybox_record", lambda: (_FakeGreyBox(), {}))
-    monkeypatch.setattr(itc, "episode", slow_episode)
+    monkeypatch.setattr(loop, "identify_for_control", identify)
+    monkeypatch.setattr(control.factory, "greybox_record", lambda: (_FakeGreyBox(), {}))
     first = [{"name": "mpc_oracle", "trace_index": 0, "seed": s, "models": None, "quick": True, "record": False}
              for s in range(30)]                                   # 15 s of queued work on 2 workers
     t0 = time.time()
     with pytest.raises(RuntimeError, match="identification failed"):
-        itc._identify_overlapped(tmp_path, True, False, first, [], workers=2)
+        loop.identify_while_running(_slow_episode, tmp_path, True, False, first, [], workers=2)
     assert time.time() - t0 < 10.0
 
 
