@@ -107,7 +107,7 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
         greybox, gb = greybox_record()
         ident = {"greybox": gb, "black_box": identify_for_control(out, quick=quick, ablation=ablation)}
         models = {"greybox": str(greybox.save(out / "model_greybox")), "black_box": ident["black_box"]}
-        for t in tasks:
+        for t in first:
             t["models"] = models
         done = run_sweep(episode, slowest_first(first), description="closed loop", **kw)
     for t in tasks:

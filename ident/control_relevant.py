@@ -87,6 +87,7 @@ def feature_values(name: str, adblue_g_s: Any, nox_ppm: Any, temp_k: Any, flow: 
     fmax = ca.fmax if sym else np.maximum
     nox_flow = fmax(nox_ppm, 0.0) * 1e-6 * flow * 1e3
     nh3_flow = adblue_g_s * NH3_MOL_PER_G_ADBLUE * 1e3
+    surplus_ppm = nh3_flow / fmax(flow, 0.1) * 1e3 - fmax(nox_ppm, 0.0)
     if name == "nox_ppm":
         return nox_ppm
     if name == "urea":
@@ -108,12 +109,10 @@ def feature_values(name: str, adblue_g_s: Any, nox_ppm: Any, temp_k: Any, flow: 
     if name == "nh3_ppm":
         return nh3_flow / fmax(flow, 0.1) * 1e3
     if name == "surplus_ppm":
-        return nh3_flow / fmax(flow, 0.1) * 1e3 - fmax(nox_ppm, 0.0)
+        return surplus_ppm
     if name in ("log_deficit", "log_excess"):
         sqrt, log = (ca.sqrt, ca.log) if sym else (np.sqrt, np.log)
-        v = nh3_flow / fmax(flow, 0.1) * 1e3 - fmax(nox_ppm, 0.0)          # the surplus [ppm]
-        if name == "log_deficit":
-            v = -v
+        v = surplus_ppm if name == "log_excess" else -surplus_ppm
         part = 0.5 * (v + sqrt(v * v + SURPLUS_SMOOTH_PPM ** 2))
         if name == "log_excess":
             return log(part + EXCESS_FLOOR_PPM)
