@@ -306,13 +306,24 @@ class BlackBoxMPC(NonlinearMPC):
         band keeps the plan in the identified region while nothing slips; once the sensor shows slip, forcing a
         dose is the wrong constraint (a black-box model does not see a heat-up desorb the store), and the NMPC's own
         slip prediction, corrected by the NH3 sensor, decides.
+    band_lo_hot, band_hot_k : the lower band's ANR on the stages whose previewed SCR inlet temperature is at least
+        ``band_hot_k`` [K] (None: the band's ``lo`` everywhere). Hot, the catalyst stores little NH3, so a dose held
+        near stoichiometric is converted or seen as slip at once; cold, a forced dose fills a store that a later
+        heat-up releases, which a model without a storage state cannot foresee.
     """
 
     def __init__(self, model: BlackBoxModel, stages: Sequence[int] = (4,) * 20,
                  anr_band: tuple[float, float] | None = None,
                  band_floor_g_s: float = 0.05, terminal_s: float = 0.0, terminal_slip_ppm: float | None = None,
-                 band_release_ppm: float | None = None, band_release_s: float = 60.0, **kwargs: Any) -> None:
+                 band_release_ppm: float | None = None, band_release_s: float = 60.0,
+                 band_lo_hot: float | None = None, band_hot_k: float = 573.15, **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)
+        if band_lo_hot is not None and not (np.isfinite(band_lo_hot) and band_lo_hot >= 0):
+            raise ValueError(f"band_lo_hot must be a number >= 0 or None, got {band_lo_hot!r}")
+        if not (np.isfinite(band_hot_k) and 200.0 <= band_hot_k <= 1200.0):
+            raise ValueError(f"band_hot_k must be a temperature in [200, 1200] K, got {band_hot_k!r}")
+        self.band_lo_hot = None if band_lo_hot is None else float(band_lo_hot)
+        self.band_hot_k = float(band_hot_k)
         if band_release_ppm is not None and not (np.isfinite(band_release_ppm) and band_release_ppm >= 0):
             raise ValueError(f"band_release_ppm must be a number >= 0 or None, got {band_release_ppm!r}")
         if not (np.isfinite(band_release_s) and band_release_s >= 0):
@@ -373,6 +384,7 @@ class BlackBoxMPC(NonlinearMPC):
         Pd = ca.SX.sym("Pd", m.n_stage_params)
         u_prev = ca.SX.sym("u_prev")
         band_lo = ca.SX.sym("band_lo")      # the lower band's ANR this solve (0 while released)
+        band_hot = ca.SX.sym("band_hot")    # ... on the hot stages (band_lo_hot; 0 while released)
         g, lbg, ubg = [], [], []
         cost = 0
         x = x0
@@ -396,11 +408,14 @@ class BlackBoxMPC(NonlinearMPC):
                 g.append(U[i] - self.anr_band[1] * ff - self.band_floor_g_s)
                 lbg.append(-ca.inf)
                 ubg.append(0.0)
-                if self.anr_band[0] > 0:
+                if self.anr_band[0] > 0 or self.band_lo_hot is not None:
                     # the lower band, only as far as the rate limit can reach it from the last dose (and the
-                    # injector allows): a bound on parameters only, so it never makes the NLP infeasible
+                    # injector allows): a bound on parameters only, so it never makes the NLP infeasible; with
+                    # band_lo_hot, that ANR on the stages whose previewed inlet temperature is at least band_hot_k
                     reach = u_prev + self.max_rate_change_g_s2 * (self.dt + sum(self.stages[1:i + 1]) * self.dt)
-                    g.append(U[i] - ca.fmin(ca.fmin(band_lo * ff, reach), self.max_rate_g_s))
+                    lo_i = band_lo if self.band_lo_hot is None else ca.if_else(d[1] >= self.band_hot_k, band_hot,
+                                                                                band_lo)
+                    g.append(U[i] - ca.fmin(ca.fmin(lo_i * ff, reach), self.max_rate_g_s))
                     lbg.append(0.0)
                     ubg.append(ca.inf)
             flow = d[0]
@@ -420,16 +435,18 @@ class BlackBoxMPC(NonlinearMPC):
         self._ubw = np.concatenate([np.tile(xub, H), np.full(H, self.max_rate_g_s), np.full(H, np.inf)])
         self._lbg, self._ubg = np.array(lbg), np.array(ubg)
         wv = ca.vertcat(ca.vec(X), U, S)
-        pv = ca.vertcat(x0, ca.vec(D), Pd, u_prev, band_lo)
+        pv = ca.vertcat(x0, ca.vec(D), Pd, u_prev, band_lo, band_hot)
         opts = {**solver_defaults(self.solver), **(self.solver_options or {})}
         self._solver = ca.nlpsol("mpc", self.solver, {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}, opts)
         self._H, self._nx = H, nx
 
-    def _band_lo(self, obs: np.ndarray) -> float:
-        """The lower band's ANR for this solve: 0 while released (``band_release_ppm``), else the band's."""
+    def _band_lo(self, obs: np.ndarray) -> tuple[float, float]:
+        """The lower band's ANRs for this solve (all stages, hot stages): 0 while released (``band_release_ppm``),
+        else the band's (the hot stages': ``band_lo_hot``, or the band's without it)."""
         lo = 0.0 if self.anr_band is None else float(self.anr_band[0])
-        if lo <= 0.0 or self.band_release_ppm is None:
-            return lo
+        hot = lo if (self.band_lo_hot is None or self.anr_band is None) else float(self.band_lo_hot)
+        if max(lo, hot) <= 0.0 or self.band_release_ppm is None:
+            return lo, hot
         nh3 = float(obs[OBS_NH3_SENSOR]) if len(obs) > OBS_NH3_SENSOR else 0.0
         if self._nh3_filtered is None or not np.isfinite(self._nh3_filtered):
             self._nh3_filtered = nh3
@@ -440,9 +457,9 @@ class BlackBoxMPC(NonlinearMPC):
         elif self._release_left > 0:
             self._release_left -= 1
         else:
-            return lo
+            return lo, hot
         self.band_released_steps_ += 1
-        return 0.0
+        return 0.0, 0.0
 
     def _disturbances(self, observation: np.ndarray) -> np.ndarray:
         """(H, 4) stage disturbances: block means of the cycle preview over each stage, or the measurement held."""
@@ -460,7 +477,7 @@ class BlackBoxMPC(NonlinearMPC):
         dist = self._disturbances(obs)
         xa = self.estimator.make_step(obs, self._u_prev, dist[0])
         x0, pd = xa[:nx], np.r_[xa[nx:nx + 2], self.model.theta_]
-        pv = np.concatenate([x0, dist.ravel(), pd, [self._u_prev, self._band_lo(obs)]])
+        pv = np.concatenate([x0, dist.ravel(), pd, [self._u_prev, *self._band_lo(obs)]])
         if self._w0 is None:
             w0 = np.concatenate([np.tile(x0, H), np.full(H, self._u_prev), np.zeros(H)])
         else:
@@ -631,6 +648,7 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
                       terminal_s=cfg["terminal_s"], weights=weights,
                       band_release_ppm=cfg.get("band_release_ppm"),
                       band_release_s=float(cfg.get("band_release_s", 60.0)),
+                      band_lo_hot=cfg.get("anr_band_lo_hot"), band_hot_k=float(cfg.get("band_hot_k", 573.15)),
                       slip_limit_ppm=float(cfg.get("plan_slip_ppm", SLIP_GUARD_PPM)), **kw)
     mpc.env_kwargs = {"nh3_sensor": True} if (nh3_sensor or slip_guard) else {}
     return mpc

@@ -310,16 +310,45 @@ def test_lower_band_is_released_while_the_nh3_sensor_shows_slip(models: dict) ->
     from control.blackbox import BAND_RELEASE_FILTER_S
 
     obs = np.zeros(6)
-    assert policy._band_lo(obs) == 1.0
+    assert policy._band_lo(obs) == (1.0, 1.0)
     obs[5] = 3.0 * (1 + 2 * BAND_RELEASE_FILTER_S)    # one reading: the filtered sensor (5 s) just above 2 ppm
-    assert policy._band_lo(obs) == 0.0
+    assert policy._band_lo(obs) == (0.0, 0.0)
     obs[5] = 0.0     # the filter decays below 2 ppm in 5 steps (3 (10/11)^5 < 2), then 1 s = 2 steps
-    assert [policy._band_lo(obs) for _ in range(7)] == [0.0] * 6 + [1.0]
+    assert [policy._band_lo(obs)[0] for _ in range(7)] == [0.0] * 6 + [1.0]
     assert policy.stats()["band_released_steps"] == 7
     noisy = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, band_release_ppm=2.0)
     rng = np.random.default_rng(0)                    # the sensor's 1 ppm noise alone never releases the band
-    assert all(noisy._band_lo(np.r_[np.zeros(5), rng.normal()]) == 1.0 for _ in range(2000))
+    assert all(noisy._band_lo(np.r_[np.zeros(5), rng.normal()])[0] == 1.0 for _ in range(2000))
     never = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0)
-    assert never._band_lo(np.r_[np.zeros(5), 50.0]) == 1.0
+    assert never._band_lo(np.r_[np.zeros(5), 50.0]) == (1.0, 1.0)
     with pytest.raises(ValueError, match="band_release_ppm"):
         black_box_nmpc(model, info, quick=True, band_release_ppm=-1.0)
+
+
+def test_hot_lower_band_holds_the_plan_on_hot_stages_only(models: dict) -> None:
+    """anr_band_lo_hot / band_hot_k: the stages whose previewed inlet temperature is at least band_hot_k keep the
+    planned dose at or above that ANR times the feedforward (as far as the rate limit reaches); the others keep the
+    band's own lower ANR (here none); released like the band; bad settings refused by name."""
+    from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    model, info = load_for_control("rpem", models)
+    env = UreaSCREnv(cycle=cycle_segment("whtc", 40.0), nh3_sensor=True)
+    obs, _ = env.reset(seed=0)
+    for hot_k, expect_band in ((300.0, True), (1200.0, False)):
+        policy = black_box_nmpc(model, info, quick=True, anr_band_lo=0.0, anr_band_lo_hot=1.0, band_hot_k=hot_k)
+        assert policy.band_lo_hot == 1.0 and policy._band_lo(np.asarray(obs, float)) == (0.0, 1.0)
+        policy.attach(env)
+        policy.predict(np.asarray(obs, float), None, episode_start=np.array([True]))
+        dist = policy._disturbances(np.asarray(obs, float))
+        ff = dist[:, 2] * 1e-6 * dist[:, 0] / NH3_MOL_PER_G_ADBLUE
+        reach = policy.max_rate_change_g_s2 * policy.dt * (1 + np.r_[0, np.cumsum(policy.stages[1:])])
+        bound = np.minimum(np.minimum(ff, reach), policy.max_rate_g_s)
+        u = policy.last_plan_["u"]
+        if expect_band:     # every stage of this segment is above 300 K
+            assert np.all(u >= bound - 1e-6)
+        assert np.all(np.isfinite(u)) and np.all(u >= -1e-9)
+    with pytest.raises(ValueError, match="band_lo_hot"):
+        black_box_nmpc(model, info, quick=True, anr_band_lo_hot=-0.5)
+    with pytest.raises(ValueError, match="band_hot_k"):
+        black_box_nmpc(model, info, quick=True, anr_band_lo_hot=1.0, band_hot_k=50.0)
