@@ -9,7 +9,8 @@ multi-rate stages with a long tail, and a dose band inside the identified region
     State estimation: an :class:`~control.estimation.ExtendedKalmanFilter` on the model state augmented with
     integrating output disturbances ``(d_nox, d_nh3)`` [ppm] (offset-free MPC, Pannocchia and Rawlings 2003),
     corrected with the tailpipe NOx sensor (read as NOx + NH3: it is cross-sensitive) and, with ``nh3_sensor``,
-    the tailpipe NH3 sensor. The disturbances are held over the horizon.
+    the tailpipe NH3 sensor. The disturbances are held over the horizon (the NH3 disturbance, with
+    ``nh3_dist_tau_s``, decays with that time constant, in the estimator and over the horizon).
 
     ``disturbance``: ``"output"`` (additive ppm on both outputs), ``"none"`` (plain EKF), or ``"gain"`` (the NOx
     disturbance multiplies the modelled NOx slip, ``nox = (1 + d_nox) nox_model``, so a conversion error does not
@@ -78,9 +79,13 @@ class BlackBoxModel:
                  terminal_cost: Callable[[Any], Any] | None = None, p0_state: float | Sequence[float] = 1.0,
                  output_smoothing: float = 1.0, nh3_kind: str = "ppm", dist_states: tuple[int, int] = (0, 1),
                  theta_step: ca.Function | None = None, theta0: Sequence[float] | None = None,
-                 adaptation: Any = None, adaptation_filter_s: float = 2.0) -> None:
+                 adaptation: Any = None, adaptation_filter_s: float = 2.0,
+                 nh3_dist_tau_s: float | None = None) -> None:
         if disturbance not in ("output", "gain", "none", "state"):
             raise ValueError(f"disturbance must be 'output', 'gain', 'state' or 'none', got {disturbance!r}")
+        if nh3_dist_tau_s is not None and not (np.isfinite(nh3_dist_tau_s) and nh3_dist_tau_s > 0):
+            raise ValueError(f"nh3_dist_tau_s must be a time > 0 [s] or None, got {nh3_dist_tau_s!r}")
+        self.nh3_dist_tau_s = None if nh3_dist_tau_s is None else float(nh3_dist_tau_s)
         self.step = step
         self.features = features
         self.zm, self.zs = np.asarray(z_mean, float), np.asarray(z_scale, float)
@@ -123,7 +128,7 @@ class BlackBoxModel:
             xn = xn + self._dist_matrix() @ ca.vertcat(dn, dh) * model_dt
         nox, nh3 = self._physical(y, ua[self.nz], dn, dh, smooth=False)
         ym = ca.vertcat(nox + nh3, nh3) if self.nh3_sensor else ca.vertcat(nox + nh3)
-        aug = ca.Function("step_aug", [xa, ua], [ca.vertcat(xn, dn, dh), ym])
+        aug = ca.Function("step_aug", [xa, ua], [ca.vertcat(xn, dn, self.nh3_dist_decay(1) * dh), ym])
         from control.estimation import ExtendedKalmanFilter
 
         qx = np.broadcast_to(np.asarray(q_state, float), (self.nx,))
@@ -138,6 +143,15 @@ class BlackBoxModel:
                                          p0=np.r_[p0x, (0.04 if disturbance == "gain" else 100.0), 25.0])
         self._u_last: np.ndarray | None = None
         self._stage_cache: dict[int, ca.Function] = {}
+
+    def nh3_dist_decay(self, steps: float) -> float:
+        """The factor by which the NH3 disturbance decays over ``steps`` model steps: 1 for an integrating
+        disturbance (``nh3_dist_tau_s`` None), else ``exp(-steps model_dt / nh3_dist_tau_s)``, a first-order
+        (Gauss-Markov) disturbance that forgets a transient, such as the slip of a heat-up desorbing a store the
+        model does not have, instead of holding it as a permanent offset."""
+        if self.nh3_dist_tau_s is None:
+            return 1.0
+        return float(np.exp(-steps * self.model_dt / self.nh3_dist_tau_s))
 
     def _call(self, x: Any, z: Any, theta: Any) -> tuple[Any, Any]:
         """The model step at parameters ``theta`` (ignored without ``theta_step``: the fixed model)."""
@@ -388,10 +402,13 @@ class BlackBoxMPC(NonlinearMPC):
         g, lbg, ubg = [], [], []
         cost = 0
         x = x0
+        elapsed = 0
         for i, k in enumerate(self.stages):
             h = k * self.dt
             d = D[:, i]
-            xe, y = m.stage(x, U[i], d, Pd, k)
+            elapsed += k
+            decay = m.nh3_dist_decay(elapsed)    # the NH3 disturbance at the stage's end (1: held)
+            xe, y = m.stage(x, U[i], d, Pd if decay == 1.0 else ca.vertcat(Pd[0], decay * Pd[1], Pd[2:]), k)
             g.append(X[:, i] - xe)
             lbg += [0.0] * nx
             ubg += [0.0] * nx
@@ -601,7 +618,8 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
     stages = QUICK_STAGES if quick else STAGES
     common = {"nox_kind": info["nox_kind"], "nh3_kind": info["nh3_kind"], "output_smoothing": 0.0,
               "disturbance": cfg["disturbance"] if offset_free else "none", "q_dist": cfg["q_dist"],
-              "r_sensor": cfg["r_sensor"], "nh3_sensor": nh3_sensor}
+              "r_sensor": cfg["r_sensor"], "nh3_sensor": nh3_sensor,
+              "nh3_dist_tau_s": cfg.get("nh3_dist_tau_s") if offset_free else None}
     features = FeatureMap(tuple(info["features"]))
     if kind == "rpem":
         step = model.to_casadi()

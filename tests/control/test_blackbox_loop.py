@@ -352,3 +352,26 @@ def test_hot_lower_band_holds_the_plan_on_hot_stages_only(models: dict) -> None:
         black_box_nmpc(model, info, quick=True, anr_band_lo_hot=-0.5)
     with pytest.raises(ValueError, match="band_hot_k"):
         black_box_nmpc(model, info, quick=True, anr_band_lo_hot=1.0, band_hot_k=50.0)
+
+
+def test_nh3_disturbance_decays_with_its_time_constant(models: dict) -> None:
+    """nh3_dist_tau_s: the NH3 disturbance is first order (decays by exp(-dt/tau) per step in the estimator and over
+    the horizon) instead of integrating; the loop still closes; bad values refused by name."""
+    model, info = load_for_control("rpem", models)
+    policy = black_box_nmpc(model, info, quick=True, nh3_dist_tau_s=60.0)
+    bm = policy.model
+    assert bm.nh3_dist_decay(120) == pytest.approx(np.exp(-1.0))
+    assert black_box_nmpc(model, info, quick=True).model.nh3_dist_decay(120) == 1.0      # integrating by default
+    assert black_box_nmpc(model, info, quick=True, offset_free=False, nh3_dist_tau_s=60.0).model.nh3_dist_tau_s is None
+    obs = np.zeros(6)
+    obs[:3] = (300.0, 550.0, 0.2)
+    bm.reset_estimate(obs)
+    xa = np.asarray(bm.ekf_.x_, float).copy()
+    xa[-1] = 10.0                                 # an NH3 disturbance of 10 ppm: the estimator's model step
+    ua = np.r_[np.asarray(bm.z_norm(0.0, *obs[:3]), float), obs[0]]
+    x_next = np.asarray(bm.ekf_.step_function(xa, ua)[0]).ravel()
+    assert x_next[-1] == pytest.approx(10.0 * np.exp(-0.5 / 60.0))
+    res = evaluate(policy, cycles=(cycle_segment("whtc", 20.0),), seeds=(0,), env_kwargs=policy.env_kwargs)[0]
+    assert np.isfinite(res.kpis["tailpipe_nox_g_per_kwh"])
+    with pytest.raises(ValueError, match="nh3_dist_tau_s"):
+        black_box_nmpc(model, info, quick=True, nh3_dist_tau_s=0.0)
