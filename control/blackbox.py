@@ -558,8 +558,15 @@ NMPC_SETTINGS: dict[str, dict[str, Any]] = {
     #   "features": [...]}'), not kept: SQP solver (48-90 % failed solves) band 0.8: 1.513 at 41.3; none: 2.436 at
     #   0.08; 0.9: 1.344 at 47.0; 1.0: 1.088 at 16.2;  "solver": "ipopt" (2-26 % failed): band 0.8: 1.092 at 7.62;
     #   none: 1.278 at 0.04 (2026-11-27).
+    #   third round (2026-11-27, same command and model; configurations on top of band 0.8):
+    #   band release on the filtered sensor (BAND_RELEASE_FILTER_S): band 1.0 + release 2 ppm: 0.819 at 16.9;
+    #   1.0 + 1 ppm: 0.829 at 10.5; 0.9 + 2 ppm: 0.834 at 8.33;  a hot band (anr_band_lo_hot 1.0 above band_hot_k
+    #   573 K): 0.818 at 8.07; 1.0 above 548 K: 0.823 at 10.7; 1.1 above 573 K: 0.817 at 12.6; 0.95 above 548 K:
+    #   0.819 at 8.11;  a first-order NH3 disturbance (nh3_dist_tau_s): 30 s: 0.797 at 8.76; 120 s: 0.820 at 7.59;
+    #   300 s: 0.807 at 5.23 <- chosen; 600 s: 0.811 at 4.21; 600 s + band 0.9: 0.802 at 10.6; + band 1.0: 0.795 at
+    #   17.3.
     "rpem": {"disturbance": "state", "q_state": 1e-4, "q_dist": (1e-5, 1e-5), "r_sensor": (25.0, 4.0),
-             "terminal_s": 120.0, "anr_band_hi": 6.0, "anr_band_lo": 0.8},
+             "terminal_s": 120.0, "anr_band_hi": 6.0, "anr_band_lo": 0.8, "nh3_dist_tau_s": 300.0},
     # Hammerstein-Wiener: q_dist (0.4, 0.1) ppm^2 per step chosen by ``python -m experiments.calibrate_black_box
     # --models hammerstein_wiener --seeds 5 6 --duration 600 --configs ...`` over q_dist (4, 1) / (40, 10) /
     # (0.4, 0.1), terminal_s 0, anr_band_lo 0 / 0.8 / 0.9 / 1.0 (calibration cycles 5-6: 0.532 g/kWh at 7.70 ppm with
