@@ -78,9 +78,12 @@ def test_multistep_refinement_lowers_the_horizon_prediction_error(records: list)
 
 def test_lower_dose_band_enters_the_nlp_only_when_set(records: list) -> None:
     model, info = fit_hw_for_control(records, max_nfev=2)
-    plain = black_box_nmpc(model, info, quick=True, anr_band_lo=0.0)
-    banded = black_box_nmpc(model, info, quick=True, anr_band_lo=0.8)
-    assert plain.anr_band[0] == 0.0 and banded.anr_band[0] == 0.8
+    plain = black_box_nmpc(model, info, quick=True, anr_band_lo=0.0, anr_band_lo_hot=None)
+    banded = black_box_nmpc(model, info, quick=True, anr_band_lo=0.8, anr_band_lo_hot=None)
+    hot_only = black_box_nmpc(model, info, quick=True, anr_band_lo=0.0, anr_band_lo_hot=1.0)
+    assert plain.anr_band[0] == 0.0 and banded.anr_band[0] == 0.8 and hot_only.band_lo_hot == 1.0
     plain._build()
     banded._build()
+    hot_only._build()
     assert banded._lbg.size == plain._lbg.size + len(banded.stages)
+    assert hot_only._lbg.size == banded._lbg.size      # the hot band alone puts the lower bound in the NLP
