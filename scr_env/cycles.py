@@ -82,8 +82,8 @@ from scr_env.engine import (
     steady_state_solid_temperatures,
 )
 
-__all__ = ["MAX_TEMPERATURE_K", "MAX_TRACE_SAMPLES", "MIN_TEMPERATURE_K", "ExhaustTrace", "available_cycles",
-           "denormalise", "from_csv", "load_cycle", "random_cycle"]
+__all__ = ["MAX_TEMPERATURE_K", "MAX_TRACE_SAMPLES", "MIN_TEMPERATURE_K", "RANDOM_CYCLE_KINDS", "ExhaustTrace",
+           "available_cycles", "denormalise", "from_csv", "load_cycle", "random_cycle"]
 
 _MAX_DT_S = 10.0  # s; coarser sampling would alias the cycles' 1 Hz content [chosen]
 _RANDOM_DEFAULT_DURATION_S = 1800.0  # s, as long as the WHTC [chosen]
@@ -396,6 +396,8 @@ def _regulatory_trace(name: str, dt: float, engine: EngineParams, cold_start: bo
 # ------------------------------------------------------------------------------------------------------ random cycles
 # Segment kinds of the generator and their transition weights (rows: from, columns: to) [chosen: a mix that resembles
 # the WHTC's urban / rural / motorway parts, with motoring about 20 % and idle about 15 % of the time like the WHTC].
+#: the generators of :func:`random_cycle`
+RANDOM_CYCLE_KINDS = ("transient", "ramped_modes")
 _KINDS = ("idle", "launch", "cruise", "urban", "stationary", "motoring")
 _TRANSITIONS = np.array([
     # idle launch cruise urban stat  motor
@@ -467,6 +469,36 @@ def _random_targets(n_seconds: int, rng: np.random.Generator) -> tuple[np.ndarra
     return n_set, tau_set
 
 
+# Ramped-mode cycles (``random_cycle(kind="ramped_modes")``): WHSC-like loaded steady modes joined by linear ramps,
+# so the catalyst stays hot for long stretches with heat-ups and cool-downs between load levels. The ranges span the
+# WHSC's own modes (GTR No. 4 Annex 1: speed 25-75 %, torque 25-100 %, modes of 30-230 s after 20 s ramps) without
+# being the WHSC [chosen].
+_MODE_SPEED_PCT = (25.0, 80.0)  # % normalised speed of a loaded mode
+_MODE_TORQUE_PCT = (25.0, 100.0)  # % normalised torque of a loaded mode
+_MODE_LENGTH_S = (30, 300)  # s, hold of a mode (integer bounds, the upper one exclusive)
+_MODE_RAMP_S = 20  # s, linear ramp into each mode, as in the WHSC
+_MODE_IDLE_PROBABILITY = 0.1  # a mode is an idle of the same length instead (cool-down, then a heat-up)
+_MODE_START_IDLE_S = (30, 211)  # s, idle at the start, as the WHSC's first 210 s (integer bounds)
+
+
+def _ramped_mode_targets(n_seconds: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Per-second normalised speed [%] and torque [%] of a random ramped-mode cycle (no motoring)."""
+    n_parts = [np.zeros(int(rng.integers(*_MODE_START_IDLE_S)))]
+    t_parts = [np.zeros(n_parts[0].size)]
+    n_now = t_now = 0.0
+    while sum(p.size for p in n_parts) < n_seconds:
+        hold = int(rng.integers(*_MODE_LENGTH_S))
+        if rng.random() < _MODE_IDLE_PROBABILITY:
+            n_mode = t_mode = 0.0
+        else:
+            n_mode, t_mode = rng.uniform(*_MODE_SPEED_PCT), rng.uniform(*_MODE_TORQUE_PCT)
+        ramp = np.arange(1, _MODE_RAMP_S + 1) / _MODE_RAMP_S
+        n_parts += [n_now + (n_mode - n_now) * ramp, np.full(hold, n_mode)]
+        t_parts += [t_now + (t_mode - t_now) * ramp, np.full(hold, t_mode)]
+        n_now, t_now = n_mode, t_mode
+    return np.concatenate(n_parts)[:n_seconds], np.concatenate(t_parts)[:n_seconds]
+
+
 def _rate_limit(setpoint: np.ndarray, rate_per_step: float) -> np.ndarray:
     out = setpoint.tolist()
     y = out[0]
@@ -477,17 +509,20 @@ def _rate_limit(setpoint: np.ndarray, rate_per_step: float) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=32)
-def _random_trace(duration_s: float, seed: int, dt: float, engine: EngineParams, cold_start: bool) -> ExhaustTrace:
+def _random_trace(duration_s: float, seed: int, dt: float, engine: EngineParams, cold_start: bool,
+                  kind: str = "transient") -> ExhaustTrace:
     _check_samples(duration_s / dt, f"a random cycle of {duration_s:g} s", dt)
     rng = np.random.default_rng(seed)
     n_seconds = math.ceil(duration_s)
-    n_set, tau_set = _random_targets(n_seconds + 1, rng)
+    targets = _random_targets if kind == "transient" else _ramped_mode_targets
+    n_set, tau_set = targets(n_seconds + 1, rng)
     n_norm = np.clip(_rate_limit(n_set, _SPEED_RATE_PCT_S), 0.0, 100.0)
     tau = np.clip(_rate_limit(tau_set, _TORQUE_RATE_PCT_S), -100.0, 100.0)
     speed = _denormalise_speed(n_norm, engine)
     torque = np.where(tau >= 0.0, tau / 100.0 * full_load_torque_nm(engine, speed),
                       -tau / 100.0 * motoring_torque_nm(engine, speed))
-    trace = _trace_from_operating_points(f"random-{seed}", dt, speed, torque, engine, cold_start)
+    name = f"random-{seed}" if kind == "transient" else f"random-modes-{seed}"
+    trace = _trace_from_operating_points(name, dt, speed, torque, engine, cold_start)
     # The 1 Hz profile has n_seconds + 1 points; keep floor(duration / dt) samples.
     n_keep = math.floor(duration_s / dt + 1e-9)
     return _frozen(replace(trace, **{f: getattr(trace, f)[:n_keep] for f in _ARRAY_FIELDS}))
@@ -499,13 +534,21 @@ def random_cycle(
     dt: float = 0.5,
     engine: EngineParams | None = None,
     cold_start: bool = False,
+    kind: str = "transient",
 ) -> ExhaustTrace:
     """A seeded random drive cycle through the engine-out model (for training and held-out testing).
 
-    A Markov chain of segments in normalised speed and torque (idle; launch at 60-100 % torque; cruise with AR(1)
-    load fluctuation; urban stop-and-go with short holds and overrun; WHSC-like stationary modes; motoring
-    decelerations on the drag curve), rate limited to 8 %/s speed and 50 %/s torque, denormalised as in GTR No. 4
-    and put through the same engine-out and DOC/DPF models as the WHTC.
+    ``kind="transient"`` (the default, WHTC-like): a Markov chain of segments in normalised speed and torque (idle;
+    launch at 60-100 % torque; cruise with AR(1) load fluctuation; urban stop-and-go with short holds and overrun;
+    WHSC-like stationary modes; motoring decelerations on the drag curve).
+
+    ``kind="ramped_modes"`` (WHSC-like): 30-210 s of idle, then loaded steady modes (25-80 % speed, 25-100 % torque,
+    held 30-299 s) joined by 20 s linear ramps, one mode in ten an idle instead; no motoring, so the catalyst stays
+    hot for long stretches with heat-ups and cool-downs between load levels. A calibration family for controllers
+    meant for the WHSC that is not the WHSC.
+
+    Either is rate limited to 8 %/s speed and 50 %/s torque, denormalised as in GTR No. 4 and put through the same
+    engine-out and DOC/DPF models as the WHTC.
 
     Parameters
     ----------
@@ -519,11 +562,15 @@ def random_cycle(
         Engine; the default engine if None.
     cold_start : bool
         Start the aftertreatment at ambient temperature (else hot start, see module docstring).
+    kind : {"transient", "ramped_modes"}
+        The generator (above). The trace is named ``random-<seed>`` or ``random-modes-<seed>``.
 
     Returns
     -------
     ExhaustTrace
     """
+    if kind not in RANDOM_CYCLE_KINDS:
+        raise ValueError(f"kind must be one of {RANDOM_CYCLE_KINDS}, got {kind!r}")
     dt = _check_dt(dt)
     try:
         duration = float(duration_s)
@@ -534,7 +581,7 @@ def random_cycle(
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     engine = EngineParams() if engine is None else engine
-    return _random_trace(duration, int(seed), dt, engine, _check_flag("cold_start", cold_start)).copy()
+    return _random_trace(duration, int(seed), dt, engine, _check_flag("cold_start", cold_start), kind).copy()
 
 
 # ------------------------------------------------------------------------------------------------------------ CSV

@@ -62,3 +62,36 @@ def test_refuses_bad_hw_fit_and_reuses_an_earlier_identification(capsys: pytest.
                                     "--json", str(tmp_path / "out.json")])
     assert doc["identification"]["models"]["hammerstein_wiener"]["path"] == "x"
     assert doc["chosen"] == {"hammerstein_wiener": {}}
+
+
+def test_ramped_mode_cycles_join_the_rule(capsys: pytest.CaptureFixture[str], tmp_path,
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """--ramped-seeds adds WHSC-like ramped-mode cycles to the calibration set: their episodes run with
+    kind="ramped_modes", are labelled "modes-<seed>", and a configuration that slips above the target on one of
+    them is not chosen even if it is the best on the transient cycles."""
+    import json
+
+    earlier = tmp_path / "earlier.json"
+    earlier.write_text(json.dumps({"identification": {"models": {"rpem": {"path": "x"}}}}))
+    seen: list[tuple[str, int, float]] = []
+
+    def sweep(fn: object, tasks: list, **kw: object) -> list:
+        rows = []
+        for t in tasks:
+            seen.append((t["kind"], t["seed"], t["duration"]))
+            bold = t["config"].get("anr_band_lo") == 1.0
+            slip = 20.0 if bold and t["kind"] == "ramped_modes" else 1.0
+            rows.append({"model": t["model"], "config": t["config"], "seed": t["seed"], "nox": 0.5 if bold else 1.0,
+                         "slip": slip, "adblue_g": 1.0, "failures": 0.0})
+        return rows
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(calibrate_black_box, "run_sweep", sweep)
+    doc = calibrate_black_box.main(["--models", "rpem", "--seeds", "5", "--ramped-seeds", "6", "--ramped-duration",
+                                    "300", "--identified", str(earlier), "--configs", "{}", '{"anr_band_lo": 1.0}'])
+    assert ("ramped_modes", 6, 300.0) in seen and ("transient", 5, 600.0) in seen
+    assert [c for c, *_ in doc["table"][1]["per_seed"]] == [5, "modes-6"]
+    assert doc["chosen"] == {"rpem": {}} and doc["ramped_seeds"] == [6]
+    with pytest.raises(SystemExit):
+        calibrate_black_box.main(["--seeds", "--ramped-seeds", "0"])
+    assert "--ramped-seeds" in capsys.readouterr().err

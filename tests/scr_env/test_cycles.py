@@ -168,7 +168,29 @@ def test_random_cycle_is_realistic(seed):
     assert np.abs(np.diff(tr.engine_speed_rpm)).max() <= 0.08 * span * 0.5 + 1e-6
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ramped_mode_cycle_is_whsc_like(seed):
+    """kind="ramped_modes": an idle start, then loaded steady modes joined by 20 s ramps, no motoring; hot for most
+    of the time like the WHSC, and a different trace from the transient generator of the same seed."""
+    tr = random_cycle(1800.0, seed=seed, kind="ramped_modes")
+    whsc = load_cycle("whsc")
+    assert tr.name == f"random-modes-{seed}" and tr.n_steps == 3600
+    assert np.all(tr.engine_power_kw >= 0.0)  # no motoring
+    assert tr.engine_speed_rpm[0] == pytest.approx(ENGINE.idle_speed_rpm)  # idle start
+    assert 0.6 <= np.mean(tr.scr_inlet_temperature_k > 573.15) <= 0.95
+    assert tr.scr_inlet_temperature_k.max() <= 800.0 and tr.nox_ppm.max() <= 2600.0
+    assert 0.5 * whsc.positive_work_kwh <= tr.positive_work_kwh <= 2.5 * whsc.positive_work_kwh
+    # steady modes: most 1 s steps hold the operating point exactly (ramps and the rate limit are the rest)
+    speed_1hz = tr.engine_speed_rpm[::2]
+    assert np.mean(np.diff(speed_1hz) == 0.0) > 0.7
+    assert not np.array_equal(tr.engine_speed_rpm, random_cycle(1800.0, seed=seed).engine_speed_rpm)
+    again = random_cycle(1800.0, seed=seed, kind="ramped_modes")
+    np.testing.assert_array_equal(tr.scr_inlet_temperature_k, again.scr_inlet_temperature_k)
+
+
 def test_random_cycle_needs_valid_arguments():
+    with pytest.raises(ValueError, match="kind"):
+        random_cycle(100.0, seed=1, kind="whsc")
     with pytest.raises(ValueError, match="seed"):
         load_cycle("random")
     with pytest.raises(ValueError, match="seed"):
