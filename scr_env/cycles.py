@@ -13,6 +13,8 @@ Sources
 ``"random"``
     :func:`random_cycle`: a seeded Markov chain of idle, launch, cruise, urban stop-and-go, stationary and motoring
     segments in normalised speed/torque, rate limited, then through the same engine model. Same seed, same trace.
+``"random_modes"``
+    :func:`random_cycle` with ``kind="ramped_modes"``: seeded WHSC-like loaded steady modes joined by 20 s ramps.
 a path to a CSV file
     :func:`from_csv`, measured SCR-inlet data replayed as is (format below).
 
@@ -82,8 +84,20 @@ from scr_env.engine import (
     steady_state_solid_temperatures,
 )
 
-__all__ = ["MAX_TEMPERATURE_K", "MAX_TRACE_SAMPLES", "MIN_TEMPERATURE_K", "RANDOM_CYCLE_KINDS", "ExhaustTrace",
-           "available_cycles", "denormalise", "from_csv", "load_cycle", "random_cycle"]
+__all__ = [
+    "MAX_TEMPERATURE_K",
+    "MAX_TRACE_SAMPLES",
+    "MIN_TEMPERATURE_K",
+    "RANDOM_CYCLES",
+    "RANDOM_CYCLE_KINDS",
+    "ExhaustTrace",
+    "available_cycles",
+    "denormalise",
+    "from_csv",
+    "is_random_cycle",
+    "load_cycle",
+    "random_cycle",
+]
 
 _MAX_DT_S = 10.0  # s; coarser sampling would alias the cycles' 1 Hz content [chosen]
 _RANDOM_DEFAULT_DURATION_S = 1800.0  # s, as long as the WHTC [chosen]
@@ -228,7 +242,12 @@ class ExhaustTrace:
 
 def available_cycles() -> tuple[str, ...]:
     """Names accepted by :func:`load_cycle` (besides a path to a CSV file)."""
-    return ("whtc", "whsc", "random")
+    return ("whtc", "whsc", *RANDOM_CYCLES)
+
+
+def is_random_cycle(cycle: object) -> bool:
+    """Whether ``cycle`` names a seeded random cycle (:data:`RANDOM_CYCLES`): a new trace per seed."""
+    return isinstance(cycle, str) and cycle in RANDOM_CYCLES
 
 
 # the physical range of each field of a trace (field, low, high, unit)
@@ -398,6 +417,8 @@ def _regulatory_trace(name: str, dt: float, engine: EngineParams, cold_start: bo
 # the WHTC's urban / rural / motorway parts, with motoring about 20 % and idle about 15 % of the time like the WHTC].
 #: the generators of :func:`random_cycle`
 RANDOM_CYCLE_KINDS = ("transient", "ramped_modes")
+#: cycle names of :func:`load_cycle` that draw a seeded random cycle, and their generator (``kind``)
+RANDOM_CYCLES: dict[str, str] = {"random": "transient", "random_modes": "ramped_modes"}
 _KINDS = ("idle", "launch", "cruise", "urban", "stationary", "motoring")
 _TRANSITIONS = np.array([
     # idle launch cruise urban stat  motor
@@ -730,7 +751,8 @@ def load_cycle(
     Parameters
     ----------
     cycle : str or os.PathLike
-        ``"whtc"``, ``"whsc"``, ``"random"`` (needs ``seed``) or a path to a user CSV file (see :func:`from_csv`).
+        ``"whtc"``, ``"whsc"``, ``"random"`` or ``"random_modes"`` (need ``seed``; :func:`random_cycle` with
+        ``kind="transient"`` / ``"ramped_modes"``) or a path to a user CSV file (see :func:`from_csv`).
     dt : float
         Sample interval [s], in (0, 10]. WHTC at 0.5 s has 3600 samples, WHSC 3790.
     engine : EngineParams, optional
@@ -739,7 +761,7 @@ def load_cycle(
         Aftertreatment starts at ambient temperature (cold WHTC); otherwise a hot start (module docstring). Not used
         for CSV data (measured temperatures already contain the start condition).
     seed : int, optional
-        Seed of the random cycle; required for ``"random"``, ignored otherwise.
+        Seed of the random cycle; required for ``"random"`` and ``"random_modes"``, ignored otherwise.
     duration_s : float
         Length of the random cycle [s] (default 1800 s, as the WHTC); ignored otherwise.
 
@@ -761,10 +783,11 @@ def load_cycle(
     if isinstance(cycle, str) and cycle.strip().lower() in available_cycles():
         key = cycle.strip().lower()
         engine = EngineParams() if engine is None else engine
-        if key == "random":
+        if key in RANDOM_CYCLES:
             if seed is None:
-                raise ValueError("seed: the 'random' cycle needs an integer seed")
-            return random_cycle(duration_s, seed, dt=dt, engine=engine, cold_start=cold_start)
+                raise ValueError(f"seed: the {key!r} cycle needs an integer seed")
+            return random_cycle(duration_s, seed, dt=dt, engine=engine, cold_start=cold_start,
+                                kind=RANDOM_CYCLES[key])
         return _regulatory_trace(key, dt, engine, cold_start).copy()
     if isinstance(cycle, (str, os.PathLike)):
         p = Path(os.fspath(cycle)).expanduser()

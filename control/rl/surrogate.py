@@ -41,7 +41,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from scr_env.constants import UREA_G_MIN_PER_ADBLUE_G_S
-from scr_env.cycles import ExhaustTrace
+from scr_env.cycles import ExhaustTrace, is_random_cycle
 from scr_env.envs.config import make_config
 from scr_env.envs.core import OBS_BASE, OBS_BASE_HIGH, OBS_BASE_LOW
 from scr_env.envs.kpis import N_ACC, N_TERMS, account_batch, account_commands, episode_kpis
@@ -250,8 +250,8 @@ class SurrogateSCREnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
         cfg = self.config
-        if cfg.cycle == "random":
-            trace = cfg.trace("random", int(self.np_random.integers(0, 2**31 - 1)), cfg.cold_start)
+        if is_random_cycle(cfg.cycle):
+            trace = cfg.trace(cfg.cycle, int(self.np_random.integers(0, 2**31 - 1)), cfg.cold_start)
         else:
             trace = cfg.trace(cfg.cycle, None, cfg.cold_start)
         self._b.start(0, trace)
@@ -311,9 +311,9 @@ class SurrogateVectorEnv(VectorEnv):
         super().reset(seed=seed)
         cfg = self.config
         if seed is not None or not self._pool:
-            if cfg.cycle == "random":
+            if is_random_cycle(cfg.cycle):
                 seeds = self.np_random.integers(0, 2**31 - 1, size=self.random_cycle_pool)
-                self._pool = [cfg.trace("random", int(s), cfg.cold_start) for s in seeds]
+                self._pool = [cfg.trace(cfg.cycle, int(s), cfg.cold_start) for s in seeds]
             else:
                 self._pool = [cfg.trace(cfg.cycle, None, cfg.cold_start)]
         for i in range(self.num_envs):

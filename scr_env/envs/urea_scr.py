@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from scr_env.cycles import ExhaustTrace
+from scr_env.cycles import ExhaustTrace, is_random_cycle
 from scr_env.envs import core
 from scr_env.envs.config import O2_FRACTION, EnvConfig, flag, make_config, reset_coverage, reset_options
 from scr_env.params import pack
@@ -78,7 +78,7 @@ class UreaSCREnv(gym.Env):
     Hot start by default: the cells at the SCR inlet temperature of the first sample, NH3 coverage
     ``initial_coverage`` (0 by default); ``cold_start=True`` starts the aftertreatment at 298.15 K (cold WHTC).
     ``reset(options=...)`` takes None or a dict with the keys ``cold_start`` (True or False),
-    ``initial_coverage`` (a number in [0, 1]) and, for ``cycle="random"`` only, ``cycle_seed`` (a non-negative int;
+    ``initial_coverage`` (a number in [0, 1]) and, for a random cycle only, ``cycle_seed`` (a non-negative int;
     None: drawn from ``self.np_random``). Any other key or value raises ``ValueError`` naming it, before the
     reset changes anything (``cycle_seed`` on a fixed cycle included: it would be ignored). Sensor noise and the
     random cycle come from ``self.np_random``.
@@ -97,7 +97,7 @@ class UreaSCREnv(gym.Env):
 
     | argument | default | meaning |
     |---|---|---|
-    | cycle | "whtc" | "whtc", "whsc", "random" (new seeded cycle each reset), a CSV path, or an ExhaustTrace |
+    | cycle | "whtc" | "whtc", "whsc", "random" / "random_modes" (seeded WHTC- / WHSC-like per reset), CSV, trace |
     | catalyst | "cu_zeolite" | preset name or :class:`~scr_env.params.CatalystParams` |
     | dt | 0.5 | control interval [s] (the thesis data: 0.5 s) |
     | age_h | 0.0 | catalyst hydrothermal ageing [h], 0-16 (the CLEERS samples), or (lo, hi) drawn per reset |
@@ -144,7 +144,7 @@ class UreaSCREnv(gym.Env):
         self._batch.set_actuator(cfg.actuator, cfg.dt)
         self._base_params = pack(cfg.effective_catalyst)
         self._fixed_trace: ExhaustTrace | None = None
-        if cfg.cycle != "random":
+        if not is_random_cycle(cfg.cycle):
             self._fixed_trace = cfg.trace(cfg.cycle, None, cfg.cold_start)
         self.trace: ExhaustTrace | None = None
         self._drive = np.zeros((0, 6))
@@ -166,18 +166,19 @@ class UreaSCREnv(gym.Env):
         coverage = reset_coverage(options, cfg.initial_coverage)
         cycle_seed = options.get("cycle_seed")
         if cycle_seed is not None:
-            if cfg.cycle != "random":
-                raise ValueError(f"options['cycle_seed'] applies to cycle='random' only; this environment replays the "
-                                 f"fixed cycle {self._fixed_trace.name!r} (got cycle_seed={cycle_seed!r})")
+            if not is_random_cycle(cfg.cycle):
+                raise ValueError(f"options['cycle_seed'] applies to a random cycle ('random', 'random_modes') only; "
+                                 f"this environment replays the fixed cycle {self._fixed_trace.name!r} "
+                                 f"(got cycle_seed={cycle_seed!r})")
             if isinstance(cycle_seed, (bool, np.bool_)) or not isinstance(cycle_seed, (int, np.integer)) \
                     or cycle_seed < 0:
                 raise ValueError(f"options['cycle_seed'] must be a non-negative integer (the seed of the random "
                                  f"cycle), got {cycle_seed!r}")
         super().reset(seed=seed)
-        if cfg.cycle == "random":
+        if is_random_cycle(cfg.cycle):
             if cycle_seed is None:
                 cycle_seed = int(self.np_random.integers(0, 2**31 - 1))
-            self.trace = cfg.trace("random", int(cycle_seed), cold)
+            self.trace = cfg.trace(cfg.cycle, int(cycle_seed), cold)
         elif cold != cfg.cold_start:
             self.trace = cfg.trace(cfg.cycle, None, cold)
         else:

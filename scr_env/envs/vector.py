@@ -9,7 +9,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from scr_env.cycles import MAX_TRACE_SAMPLES, ExhaustTrace
+from scr_env.cycles import MAX_TRACE_SAMPLES, ExhaustTrace, is_random_cycle
 from scr_env.envs import core
 from scr_env.envs.config import O2_FRACTION, flag, make_config, reset_coverage, reset_options
 from scr_env.params import pack
@@ -73,7 +73,7 @@ class UreaSCRVectorEnv(VectorEnv):
     | num_envs | 1 | number of plants |
     | cycle | "whtc" | one cycle for all plants, or a sequence of ``num_envs`` cycles (names, paths, ExhaustTraces) |
     | random_offsets | False | start each episode at a random step of its cycle, so plants are not in lockstep |
-    | random_cycle_pool | 32 | with cycle "random": size of the pool of seeded random cycles drawn from at each reset |
+    | random_cycle_pool | 32 | with a random cycle: size of the pool of seeded random cycles drawn from at each reset |
     | autoreset_mode | "next_step" | Gymnasium's ``AutoresetMode.NEXT_STEP`` or ``SAME_STEP`` (or their names) |
     | max_episode_steps | None | truncate every episode after this many steps (if the cycle has not ended before) |
 
@@ -136,7 +136,7 @@ class UreaSCRVectorEnv(VectorEnv):
                 self._configs[key] = make_config(cycle=c, **kwargs)
         self._cycle_keys = [self._key(c) for c in cycles]
         cfg = self._configs[self._cycle_keys[0]]
-        if any(c.cycle == "random" for c in self._configs.values()):
+        if any(is_random_cycle(c.cycle) for c in self._configs.values()):
             # the pool of random cycles shares one drive table: bounded as one trace is (scr_env.cycles)
             rows = int(random_cycle_pool) * (cfg.random_cycle_duration_s / cfg.dt)
             if not rows <= MAX_TRACE_SAMPLES:
@@ -171,7 +171,7 @@ class UreaSCRVectorEnv(VectorEnv):
         self._trace_base = np.zeros(0, dtype=np.int64)
         self._trace_len = np.zeros(0, dtype=np.int64)
         self._fixed_index: dict[str, int] = {}
-        self._pool_index: list[int] = []
+        self._pool_index: dict[str, list[int]] = {}  # per random-cycle name, the pool's trace indices
         self._env_trace = np.zeros(n, dtype=np.int64)
         self._base = np.zeros(n, dtype=np.int64)
         self._len = np.zeros(n, dtype=np.int64)
@@ -193,14 +193,15 @@ class UreaSCRVectorEnv(VectorEnv):
     def _build_traces(self, seed_rng: np.random.Generator) -> None:
         traces: list[ExhaustTrace] = []
         self._fixed_index = {}
-        self._pool_index = []
+        self._pool_index = {}
         for key, cfg in self._configs.items():
-            if cfg.cycle == "random":
-                if not self._pool_index:
+            if is_random_cycle(cfg.cycle):
+                if cfg.cycle not in self._pool_index:
+                    pool = self._pool_index[cfg.cycle] = []
                     seeds = seed_rng.integers(0, 2**31 - 1, size=self.random_cycle_pool)
                     for s in seeds:
-                        self._pool_index.append(len(traces))
-                        traces.append(cfg.trace("random", int(s), cfg.cold_start))
+                        pool.append(len(traces))
+                        traces.append(cfg.trace(cfg.cycle, int(s), cfg.cold_start))
             else:
                 self._fixed_index[key] = len(traces)
                 traces.append(cfg.trace(cfg.cycle, None, cfg.cold_start))
@@ -218,8 +219,9 @@ class UreaSCRVectorEnv(VectorEnv):
         for i in idx:
             key = self._cycle_keys[i]
             cfg = self._configs[key]
-            if cfg.cycle == "random":
-                t = self._pool_index[int(rng.integers(len(self._pool_index)))]
+            if is_random_cycle(cfg.cycle):
+                pool = self._pool_index[cfg.cycle]
+                t = pool[int(rng.integers(len(pool)))]
             else:
                 t = self._fixed_index[key]
             self._env_trace[i] = t

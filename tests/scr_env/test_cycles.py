@@ -32,7 +32,10 @@ def whtc_cold() -> ExhaustTrace:
 
 # ------------------------------------------------------------------------------------------------ shape and grid
 def test_available_cycles():
-    assert available_cycles() == ("whtc", "whsc", "random")
+    assert available_cycles() == ("whtc", "whsc", "random", "random_modes")
+    assert load_cycle("random_modes", seed=3, duration_s=300.0).name == "random-modes-3"
+    with pytest.raises(ValueError, match="seed"):
+        load_cycle("random_modes")
 
 
 def test_whtc_and_whsc_lengths(whtc):

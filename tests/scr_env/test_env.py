@@ -10,6 +10,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import scr_env
+from scr_env.cycles import random_cycle
 from scr_env.envs import UreaSCREnv, UreaSCRVectorEnv
 
 ENV_ID = scr_env.ENV_ID
@@ -158,6 +159,24 @@ def test_random_cycle_is_reproducible_from_the_cycle_seed() -> None:
     env.reset(seed=1, options={"cycle_seed": 6})
     assert not np.array_equal(a, env.trace.nox_ppm)
     assert env._n == 120
+
+
+def test_ramped_mode_random_cycle_in_the_single_and_the_vector_env() -> None:
+    """cycle="random_modes": each reset draws a seeded ramped-mode cycle (random_cycle(kind="ramped_modes")), the
+    same trace for the same cycle_seed; the vector env keeps its own pool of them beside a transient "random" pool."""
+    env = UreaSCREnv(cycle="random_modes", random_cycle_duration_s=120.0)
+    env.reset(seed=0, options={"cycle_seed": 5})
+    ref = random_cycle(120.0, seed=5, kind="ramped_modes")
+    assert env.trace.name == "random-modes-5"
+    np.testing.assert_array_equal(env.trace.scr_inlet_temperature_k, ref.scr_inlet_temperature_k)
+    env.reset(seed=1)
+    assert env.trace.name.startswith("random-modes-") and env._n == 240
+    venv = UreaSCRVectorEnv(num_envs=2, cycle="random_modes", random_cycle_duration_s=60.0, random_cycle_pool=2)
+    venv.reset(seed=0)
+    names = {venv._traces[i].name for i in venv._env_trace}
+    assert all(n.startswith("random-modes-") for n in names)
+    obs, *_ = venv.step(np.full((2, 1), -0.5, dtype=np.float32))
+    assert np.all(np.isfinite(obs))
 
 
 def test_render_rgb_array() -> None:
@@ -366,7 +385,7 @@ def test_numeric_arguments_accept_numpy_numbers() -> None:
     ([1], r"^options must be None or a dict"),
     ("cold_start", r"^options must be None or a dict"),
     ({"coldstart": True}, r"^options has unknown key\(s\) 'coldstart'"),
-    ({"cycle_seed": 3}, r"options\['cycle_seed'\] applies to cycle='random' only"),
+    ({"cycle_seed": 3}, r"options\['cycle_seed'\] applies to a random cycle \('random', 'random_modes'\) only"),
 ])
 def test_reset_options_errors_name_the_option(options, match) -> None:
     env = UreaSCREnv()
