@@ -324,14 +324,25 @@ class BlackBoxMPC(NonlinearMPC):
         ``band_hot_k`` [K] (None: the band's ``lo`` everywhere). Hot, the catalyst stores little NH3, so a dose held
         near stoichiometric is converted or seen as slip at once; cold, a forced dose fills a store that a later
         heat-up releases, which a model without a storage state cannot foresee.
+    band_hi_cold, band_cold_k : the upper band's ANR on the stages whose previewed SCR inlet temperature is below
+        ``band_cold_k`` [K] (None: the band's ``hi`` everywhere). The mirror image of the hot band: cool, the
+        catalyst stores what is over-dosed and a later heat-up releases it as slip, which a model without a storage
+        state cannot foresee; hot, an over-dose is seen at once and the model's slip prediction limits it.
     """
 
     def __init__(self, model: BlackBoxModel, stages: Sequence[int] = (4,) * 20,
                  anr_band: tuple[float, float] | None = None,
                  band_floor_g_s: float = 0.05, terminal_s: float = 0.0, terminal_slip_ppm: float | None = None,
                  band_release_ppm: float | None = None, band_release_s: float = 60.0,
-                 band_lo_hot: float | None = None, band_hot_k: float = 573.15, **kwargs: Any) -> None:
+                 band_lo_hot: float | None = None, band_hot_k: float = 573.15, band_hi_cold: float | None = None,
+                 band_cold_k: float = 523.15, **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)
+        if band_hi_cold is not None and not (np.isfinite(band_hi_cold) and band_hi_cold >= 0):
+            raise ValueError(f"band_hi_cold must be a number >= 0 or None, got {band_hi_cold!r}")
+        if not (np.isfinite(band_cold_k) and 200.0 <= band_cold_k <= 1200.0):
+            raise ValueError(f"band_cold_k must be a temperature in [200, 1200] K, got {band_cold_k!r}")
+        self.band_hi_cold = None if band_hi_cold is None else float(band_hi_cold)
+        self.band_cold_k = float(band_cold_k)
         if band_lo_hot is not None and not (np.isfinite(band_lo_hot) and band_lo_hot >= 0):
             raise ValueError(f"band_lo_hot must be a number >= 0 or None, got {band_lo_hot!r}")
         if not (np.isfinite(band_hot_k) and 200.0 <= band_hot_k <= 1200.0):
@@ -422,7 +433,9 @@ class BlackBoxMPC(NonlinearMPC):
             ubg.append(lim)
             if self.anr_band is not None:
                 ff = d[2] * 1e-6 * d[0] / NH3_MOL_PER_G_ADBLUE
-                g.append(U[i] - self.anr_band[1] * ff - self.band_floor_g_s)
+                hi_i = self.anr_band[1] if self.band_hi_cold is None else \
+                    ca.if_else(d[1] < self.band_cold_k, self.band_hi_cold, self.anr_band[1])
+                g.append(U[i] - hi_i * ff - self.band_floor_g_s)
                 lbg.append(-ca.inf)
                 ubg.append(0.0)
                 if self.anr_band[0] > 0 or self.band_lo_hot is not None:
@@ -678,6 +691,7 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
                       band_release_ppm=cfg.get("band_release_ppm"),
                       band_release_s=float(cfg.get("band_release_s", 60.0)),
                       band_lo_hot=cfg.get("anr_band_lo_hot"), band_hot_k=float(cfg.get("band_hot_k", 573.15)),
+                      band_hi_cold=cfg.get("anr_band_hi_cold"), band_cold_k=float(cfg.get("band_cold_k", 523.15)),
                       slip_limit_ppm=float(cfg.get("plan_slip_ppm", SLIP_GUARD_PPM)), **kw)
     mpc.env_kwargs = {"nh3_sensor": True} if (nh3_sensor or slip_guard) else {}
     return mpc

@@ -354,6 +354,36 @@ def test_hot_lower_band_holds_the_plan_on_hot_stages_only(models: dict) -> None:
         black_box_nmpc(model, info, quick=True, anr_band_lo_hot=1.0, band_hot_k=50.0)
 
 
+def test_cold_upper_band_caps_the_plan_on_cool_stages_only(models: dict) -> None:
+    """anr_band_hi_cold / band_cold_k: the stages whose previewed inlet temperature is below band_cold_k keep the
+    planned dose at or below that ANR times the feedforward (plus the band's floor); with the threshold below every
+    previewed temperature the band's own upper ANR applies; bad settings refused by name."""
+    from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    model, info = load_for_control("rpem", models)
+    env = UreaSCREnv(cycle=cycle_segment("whtc", 40.0), nh3_sensor=True)
+    obs, _ = env.reset(seed=0)
+    plans = {}
+    for cold_k in (1200.0, 300.0):
+        policy = black_box_nmpc(model, info, quick=True, anr_band_lo=0.0, anr_band_hi=6.0, anr_band_hi_cold=0.5,
+                                band_cold_k=cold_k)
+        assert policy.band_hi_cold == 0.5 and policy.band_cold_k == cold_k
+        policy.attach(env)
+        policy.predict(np.asarray(obs, float), None, episode_start=np.array([True]))
+        dist = policy._disturbances(np.asarray(obs, float))
+        ff = dist[:, 2] * 1e-6 * dist[:, 0] / NH3_MOL_PER_G_ADBLUE
+        u = policy.last_plan_["u"]
+        plans[cold_k] = u
+        anr = 0.5 if cold_k == 1200.0 else 6.0      # every stage of this segment is below 1200 K, above 300 K
+        assert np.all(u <= anr * ff + policy.band_floor_g_s + 1e-6) and np.all(u >= -1e-9)
+    assert np.any(plans[300.0] > 0.5 * ff + policy.band_floor_g_s + 1e-3)   # the cap binds only where it applies
+    with pytest.raises(ValueError, match="band_hi_cold"):
+        black_box_nmpc(model, info, quick=True, anr_band_hi_cold=-1.0)
+    with pytest.raises(ValueError, match="band_cold_k"):
+        black_box_nmpc(model, info, quick=True, anr_band_hi_cold=1.0, band_cold_k=5000.0)
+
+
 def test_nh3_disturbance_decays_with_its_time_constant(models: dict) -> None:
     """nh3_dist_tau_s: the NH3 disturbance is first order (decays by exp(-dt/tau) per step in the estimator and over
     the horizon) instead of integrating; the loop still closes; bad values refused by name."""
