@@ -305,6 +305,20 @@ class BlackBoxEstimator:
         return self.model.prepare(observation, applied_dose_g_s)
 
 
+def _optional_anr(name: str, value: float | None) -> float | None:
+    """A band's ANR setting: a number >= 0 or None (ValueError naming ``name``)."""
+    if value is not None and not (np.isfinite(value) and value >= 0):
+        raise ValueError(f"{name} must be a number >= 0 or None, got {value!r}")
+    return None if value is None else float(value)
+
+
+def _band_temperature(name: str, value: float) -> float:
+    """A band's temperature threshold in [200, 1200] K (ValueError naming ``name``)."""
+    if not (np.isfinite(value) and 200.0 <= value <= 1200.0):
+        raise ValueError(f"{name} must be a temperature in [200, 1200] K, got {value!r}")
+    return float(value)
+
+
 class BlackBoxMPC(NonlinearMPC):
     """Economic NMPC on a :class:`BlackBoxModel` over stages of different lengths (module docstring).
 
@@ -337,18 +351,10 @@ class BlackBoxMPC(NonlinearMPC):
                  band_lo_hot: float | None = None, band_hot_k: float = 573.15, band_hi_cold: float | None = None,
                  band_cold_k: float = 523.15, **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)
-        if band_hi_cold is not None and not (np.isfinite(band_hi_cold) and band_hi_cold >= 0):
-            raise ValueError(f"band_hi_cold must be a number >= 0 or None, got {band_hi_cold!r}")
-        if not (np.isfinite(band_cold_k) and 200.0 <= band_cold_k <= 1200.0):
-            raise ValueError(f"band_cold_k must be a temperature in [200, 1200] K, got {band_cold_k!r}")
-        self.band_hi_cold = None if band_hi_cold is None else float(band_hi_cold)
-        self.band_cold_k = float(band_cold_k)
-        if band_lo_hot is not None and not (np.isfinite(band_lo_hot) and band_lo_hot >= 0):
-            raise ValueError(f"band_lo_hot must be a number >= 0 or None, got {band_lo_hot!r}")
-        if not (np.isfinite(band_hot_k) and 200.0 <= band_hot_k <= 1200.0):
-            raise ValueError(f"band_hot_k must be a temperature in [200, 1200] K, got {band_hot_k!r}")
-        self.band_lo_hot = None if band_lo_hot is None else float(band_lo_hot)
-        self.band_hot_k = float(band_hot_k)
+        self.band_hi_cold = _optional_anr("band_hi_cold", band_hi_cold)
+        self.band_cold_k = _band_temperature("band_cold_k", band_cold_k)
+        self.band_lo_hot = _optional_anr("band_lo_hot", band_lo_hot)
+        self.band_hot_k = _band_temperature("band_hot_k", band_hot_k)
         if band_release_ppm is not None and not (np.isfinite(band_release_ppm) and band_release_ppm >= 0):
             raise ValueError(f"band_release_ppm must be a number >= 0 or None, got {band_release_ppm!r}")
         if not (np.isfinite(band_release_s) and band_release_s >= 0):
