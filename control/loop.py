@@ -130,8 +130,8 @@ def closed_loop_identification(records: list[Any], validation: list[Any], seeds:
 def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
                          closed_loop_iterations: int = CLOSED_LOOP_ITERATIONS, keep_iterations: bool = False,
                          closed_loop_nmpc: dict[str, Any] | None = None, kinds: tuple[str, ...] = BLACK_BOX,
-                         hw_fit: dict[str, Any] | None = None, rpem_fit: dict[str, Any] | None = None
-                         ) -> dict[str, Any]:
+                         hw_fit: dict[str, Any] | None = None, rpem_fit: dict[str, Any] | None = None,
+                         ramped_seeds: tuple[int, ...] | None = None) -> dict[str, Any]:
     """Identification for control (:mod:`ident.for_control`): control-relevant records over the random cycles of
     :data:`ident.for_control.IDENT_SEEDS` (quick: the first :data:`QUICK_IDENT_SEEDS` seeds), the two-output RPEM and
     Hammerstein-Wiener models, saved to ``out``; their k-step FIT [%] on the validation record (random cycle
@@ -143,9 +143,14 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
     (``{"error": ...}``). ``kinds``: the model kinds to fit;
     ``hw_fit``: :func:`ident.for_control.fit_hw_for_control` options (calibration of the model structure);
     ``rpem_fit``: :func:`ident.for_control.fit_rpem_for_control` options (default :data:`RPEM_FIT`; quick mode:
-    :data:`QUICK_RPEM_FIT`)."""
+    :data:`QUICK_RPEM_FIT`); ``ramped_seeds``: WHSC-like ramped-mode cycles (``random_cycle(kind="ramped_modes")``,
+    :data:`ident.for_control.IDENT_RAMPED_DURATION_S` each) whose records join the transient ones, with a ramped-mode
+    validation record of the same seed as the transient one (default
+    :data:`ident.for_control.IDENT_RAMPED_SEEDS`; quick mode: none)."""
     from ident.for_control import (
         DESIGNS,
+        IDENT_RAMPED_DURATION_S,
+        IDENT_RAMPED_SEEDS,
         IDENT_SEEDS,
         VALIDATION_SEED,
         fit_hw_for_control,
@@ -157,8 +162,13 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
     from ident.io import save_model
 
     seeds = IDENT_SEEDS[:QUICK_IDENT_SEEDS] if quick else IDENT_SEEDS
-    records = identification_records(seeds)
-    validation = identification_records((VALIDATION_SEED,))
+    if ramped_seeds is None:
+        ramped_seeds = () if quick else IDENT_RAMPED_SEEDS
+    ramped = tuple(int(s) for s in ramped_seeds)
+    modes = {"cycle": "random_modes", "duration_s": IDENT_RAMPED_DURATION_S}
+    records = identification_records(seeds) + (identification_records(ramped, **modes) if ramped else [])
+    validation = identification_records((VALIDATION_SEED,)) + \
+        (identification_records((VALIDATION_SEED,), **modes) if ramped else [])
     rfit = dict((QUICK_RPEM_FIT if quick else RPEM_FIT) if rpem_fit is None else rpem_fit)
     fits: dict[str, Any] = {"rpem": lambda r: fit_rpem_for_control(r, validation=validation, **rfit),
                             "hammerstein_wiener": lambda r: fit_hw_for_control(r, **(hw_fit or {}))}
@@ -179,7 +189,8 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
             variants += [(f"rpem-iter{i}", "rpem", lambda r, i=i: iterated(i))
                          for i in range(closed_loop_iterations)]
     if ablation:
-        over = identification_records(seeds, designs=("overdosing",))
+        over = identification_records(seeds, designs=("overdosing",)) + \
+            (identification_records(ramped, designs=("overdosing",), **modes) if ramped else [])
         for n, f in fits.items():
             variants.append((f"{n}-no_control_relevant_excitation", n, lambda r, f=f: f(over)))
         if "rpem" in kinds:
@@ -194,6 +205,8 @@ def identify_for_control(out: Path, quick: bool = False, ablation: bool = False,
                              lambda r: fit_hw_for_control(r, **{**(hw_fit or {}), "static_blocks": False,
                                                                 "output_blocks": ("identity", "identity")})))
     info: dict[str, Any] = {"data": {"seeds": list(seeds), "designs": list(DESIGNS), "n_records": len(records),
+                                     "ramped_mode_seeds": list(ramped), "ramped_mode_duration_s":
+                                     IDENT_RAMPED_DURATION_S if ramped else None,
                                      "validation_seed": VALIDATION_SEED}, "models": {}}
     for name, kind, fit in variants:
         t0 = time.perf_counter()

@@ -80,6 +80,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--ramped-seeds", type=int, nargs="*", default=[],
                     help="ramped-mode calibration cycles (random_cycle(kind='ramped_modes'), WHSC-like) beside --seeds")
     ap.add_argument("--ramped-duration", type=float, default=1200.0, help="seconds of each ramped-mode cycle")
+    ap.add_argument("--ident-ramped-seeds", type=int, nargs="*", default=None,
+                    help="ramped-mode identification cycles beside the transient ones (default: the loop's)")
     ap.add_argument("--slip-target", type=float, default=8.0, help="mean NH3 slip bound on every cycle [ppm]")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--identified", type=Path, default=None,
@@ -95,6 +97,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         args.workers = 1
     if any(s in (0,) for s in args.seeds + args.ramped_seeds):
         ap.error("--seeds/--ramped-seeds: use calibration cycles (5-8), not seed 0")
+    if set(args.ident_ramped_seeds or ()) & set(args.ramped_seeds):
+        ap.error("--ident-ramped-seeds: identification cycles must differ from the --ramped-seeds calibration cycles")
     if not args.seeds and not args.ramped_seeds:
         ap.error("give calibration cycles: --seeds and/or --ramped-seeds")
     try:
@@ -111,11 +115,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         black_box = json.loads(args.identified.read_text())["identification"]
     elif args.closed_loop_iterations is None:
         black_box = identify_for_control(out, kinds=tuple(m for m in args.models if m in BLACK_BOX) or BLACK_BOX,
-                                         hw_fit=hw_fit, rpem_fit=rpem_fit)
+                                         hw_fit=hw_fit, rpem_fit=rpem_fit, ramped_seeds=args.ident_ramped_seeds)
     else:
         black_box = identify_for_control(out, closed_loop_iterations=args.closed_loop_iterations,
                                          keep_iterations=True, closed_loop_nmpc=json.loads(args.closed_loop_nmpc),
-                                         hw_fit=hw_fit, rpem_fit=rpem_fit)
+                                         hw_fit=hw_fit, rpem_fit=rpem_fit, ramped_seeds=args.ident_ramped_seeds)
     cycles = [(s, args.duration, "transient") for s in args.seeds]
     cycles += [(s, args.ramped_duration, "ramped_modes") for s in args.ramped_seeds]
     tasks = [{"model": m, "config": c, "seed": s, "duration": d, "black_box": black_box, "kind": k}

@@ -206,6 +206,16 @@ class Record:
         return len(self.u)
 
 
+def _random_family(cycle: str) -> str:
+    """``cycle`` checked: a seeded random-cycle family of :data:`scr_env.cycles.RANDOM_CYCLES` (records come from
+    seeded random cycles only; never the held-out WHTC/WHSC)."""
+    from scr_env.cycles import RANDOM_CYCLES, is_random_cycle
+
+    if not is_random_cycle(cycle):
+        raise ValueError(f"cycle must be a random-cycle family {sorted(RANDOM_CYCLES)}, got {cycle!r}")
+    return str(cycle)
+
+
 def _record_from_trajectory(tr: Any, meta: dict) -> Record:
     s = tr.signals
     u = np.column_stack([s["inlet_nox_ppm"], s["adblue_g_s"] * UREA_G_MIN_PER_ADBLUE_G_S,
@@ -273,16 +283,17 @@ class EdgeSeekingDosing:
 
 
 def edge_seeking_record(seed: int, dosing: EdgeSeekingDosing | None = None, duration_s: float | None = None,
-                        dt: float = 0.5) -> Record:
-    """Roll the plant (``UreaSCREnv(cycle="random", nh3_sensor=True)``, reset seed ``seed``) out under
-    :class:`EdgeSeekingDosing` and return the record."""
+                        dt: float = 0.5, cycle: str = "random") -> Record:
+    """Roll the plant (``UreaSCREnv(cycle=cycle, nh3_sensor=True)``, reset seed ``seed``; ``cycle`` one of the
+    seeded random families :data:`scr_env.cycles.RANDOM_CYCLES`) out under :class:`EdgeSeekingDosing` and return the
+    record."""
     from ident.plant_data import feedforward_adblue_g_s
     from scr_env.envs.urea_scr import UreaSCREnv
     from scr_env.rollout import rollout
 
     dz = dosing or EdgeSeekingDosing()
     kw = {} if duration_s is None else {"random_cycle_duration_s": float(duration_s)}
-    env = UreaSCREnv(cycle="random", dt=dt, nh3_sensor=True, **kw)
+    env = UreaSCREnv(cycle=_random_family(cycle), dt=dt, nh3_sensor=True, **kw)
     env.reset(seed=seed)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xED6E]))
     max_rate = env.max_rate_g_s
@@ -312,16 +323,17 @@ def edge_seeking_record(seed: int, dosing: EdgeSeekingDosing | None = None, dura
 
 
 def open_loop_record(seed: int, dosing: ControlRelevantDosing | None = None, duration_s: float | None = None,
-                     dt: float = 0.5) -> Record:
-    """Roll the plant (``UreaSCREnv(cycle="random", nh3_sensor=True)``, reset seed ``seed``: random cycle and sensor
-    noise) out under :class:`ControlRelevantDosing` (default design) and return the record."""
+                     dt: float = 0.5, cycle: str = "random") -> Record:
+    """Roll the plant (``UreaSCREnv(cycle=cycle, nh3_sensor=True)``, reset seed ``seed``: random cycle of the family
+    ``cycle`` (:data:`scr_env.cycles.RANDOM_CYCLES`) and sensor noise) out under :class:`ControlRelevantDosing`
+    (default design) and return the record."""
     from ident.plant_data import feedforward_adblue_g_s
     from scr_env.envs.urea_scr import UreaSCREnv
     from scr_env.rollout import rollout
 
     dosing = dosing or ControlRelevantDosing()
     kw = {} if duration_s is None else {"random_cycle_duration_s": float(duration_s)}
-    env = UreaSCREnv(cycle="random", dt=dt, nh3_sensor=True, **kw)
+    env = UreaSCREnv(cycle=_random_family(cycle), dt=dt, nh3_sensor=True, **kw)
     _, info = env.reset(seed=seed)
     n = int(info["n_steps"])
     anr, floor = dosing.anr_sequence(n, dt, seed)
@@ -337,11 +349,13 @@ def open_loop_record(seed: int, dosing: ControlRelevantDosing | None = None, dur
 
 
 def closed_loop_record(policy: Any, seed: int, dither: float = 0.1, dither_hold_s: tuple[float, float] = (2.0, 20.0),
-                       duration_s: float | None = None, dt: float = 0.5, env_kwargs: dict | None = None) -> Record:
+                       duration_s: float | None = None, dt: float = 0.5, env_kwargs: dict | None = None,
+                       cycle: str = "random") -> Record:
     """Run ``policy`` (the policy protocol, e.g. an NMPC) on the random cycle of reset seed ``seed`` with a
     multiplicative dither on its dose, ``dose * (1 + e)``, ``e`` random steps in [-dither, dither] held
     ``dither_hold_s`` seconds, drawn from the seed independently of the measurements (the closed-loop
-    identification's source of information that is uncorrelated with the noise, issue 18 trap 1)."""
+    identification's source of information that is uncorrelated with the noise, issue 18 trap 1); ``cycle``: the
+    random-cycle family (:data:`scr_env.cycles.RANDOM_CYCLES`)."""
     from control.protocol import action_to_rate, rate_to_action
     from ident.excitation import RandomSteps
     from scr_env.envs.urea_scr import UreaSCREnv
@@ -351,7 +365,7 @@ def closed_loop_record(policy: Any, seed: int, dither: float = 0.1, dither_hold_
     kw["nh3_sensor"] = True
     if duration_s is not None:
         kw["random_cycle_duration_s"] = float(duration_s)
-    env = UreaSCREnv(cycle="random", dt=dt, **kw)
+    env = UreaSCREnv(cycle=_random_family(cycle), dt=dt, **kw)
     obs, info = env.reset(seed=seed)
     n = int(info["n_steps"])
     e = RandomSteps(-dither, dither, *dither_hold_s).generate(n, dt, np.random.SeedSequence([int(seed), 0xD17])) \

@@ -54,6 +54,11 @@ def hw_steady_state(A: np.ndarray, bfun: Any, z: np.ndarray) -> np.ndarray:
 IDENT_SEEDS = tuple(range(10, 18))
 #: random-cycle seed of the validation record (k-step FIT)
 VALIDATION_SEED = 18
+#: ramped-mode (WHSC-like, ``random_cycle(kind="ramped_modes")``) cycle seeds of further identification records
+#: beside the transient ones (none: the models are identified on transient driving only) [chosen]
+IDENT_RAMPED_SEEDS: tuple[int, ...] = ()
+#: seconds of each ramped-mode identification record
+IDENT_RAMPED_DURATION_S = 1200.0
 #: the designs of the identification records (:mod:`ident.control_relevant`): open-loop ANR 0.8-1.3 with over-dosing
 #: bursts, and the edge-seeking relay around the slip edge
 DESIGNS = ("open_loop", "edge_seeking")
@@ -73,25 +78,28 @@ NOX_KIND, NH3_KIND = "logratio", "log"
 
 
 def identification_records(seeds: Sequence[int] = IDENT_SEEDS, designs: Sequence[str] = DESIGNS,
-                           duration_s: float | None = None) -> list[Any]:
+                           duration_s: float | None = None, cycle: str = "random") -> list[Any]:
     """Control-relevant identification records (:class:`ident.control_relevant.Record`): every design on the random
     cycle of every seed (``"open_loop"``, ``"edge_seeking"``, or ``"overdosing"``: the single open-loop over-dosing
-    design of :func:`control.loop.black_box_excitation`, the ablation's "no control-relevant excitation")."""
+    design of :func:`control.loop.black_box_excitation`, the ablation's "no control-relevant excitation").
+    ``cycle``: the random-cycle family (:data:`scr_env.cycles.RANDOM_CYCLES`: ``"random"`` transient driving,
+    ``"random_modes"`` WHSC-like ramped modes)."""
     from ident.control_relevant import Record, edge_seeking_record, open_loop_record
 
     out = []
     for d in designs:
         for s in seeds:
             if d == "open_loop":
-                out.append(open_loop_record(int(s), duration_s=duration_s))
+                out.append(open_loop_record(int(s), duration_s=duration_s, cycle=cycle))
             elif d == "edge_seeking":
-                out.append(edge_seeking_record(int(s), duration_s=duration_s))
+                out.append(edge_seeking_record(int(s), duration_s=duration_s, cycle=cycle))
             elif d == "overdosing":
+                from ident.control_relevant import _random_family
                 from ident.excitation import RandomSteps
                 from ident.plant_data import excitation_dataset
 
                 kw = {} if duration_s is None else {"random_cycle_duration_s": float(duration_s)}
-                ds = excitation_dataset("random", seed=int(s), base_anr=1.0,
+                ds = excitation_dataset(_random_family(cycle), seed=int(s), base_anr=1.0,
                                         excitation=RandomSteps(-0.9, 1.0, 20.0, 200.0), **kw)
                 out.append(Record(u=ds.u, y=ds.y, nh3_sensor=ds.y[:, 1], dt=ds.dt, meta={"kind": d, "seed": int(s)}))
             else:

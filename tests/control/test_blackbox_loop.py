@@ -405,3 +405,15 @@ def test_nh3_disturbance_decays_with_its_time_constant(models: dict) -> None:
     assert np.isfinite(res.kpis["tailpipe_nox_g_per_kwh"])
     with pytest.raises(ValueError, match="nh3_dist_tau_s"):
         black_box_nmpc(model, info, quick=True, nh3_dist_tau_s=0.0)
+
+
+def test_identification_records_come_from_the_named_random_family_only() -> None:
+    ramped = identification_records(seeds=(10,), duration_s=120.0, cycle="random_modes")
+    assert [r.meta["kind"] for r in ramped] == ["open_loop", "edge_seeking"]
+    assert all(r.meta["cycle"].startswith("random-modes-") and len(r.u) == 240 for r in ramped)
+    transient = identification_records(seeds=(10,), designs=("open_loop",), duration_s=120.0)
+    assert transient[0].meta["cycle"].startswith("random-") and "modes" not in transient[0].meta["cycle"]
+    assert not np.allclose(transient[0].u[:, 1], ramped[0].u[:, 1])   # a different exhaust trace
+    for bad in ("whtc", "whsc", "random_cycle"):   # never the held-out cycles, and a clear name
+        with pytest.raises(ValueError, match="cycle must be a random-cycle family"):
+            identification_records(seeds=(10,), designs=("open_loop",), duration_s=60.0, cycle=bad)

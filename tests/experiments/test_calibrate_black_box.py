@@ -95,3 +95,27 @@ def test_ramped_mode_cycles_join_the_rule(capsys: pytest.CaptureFixture[str], tm
     with pytest.raises(SystemExit):
         calibrate_black_box.main(["--seeds", "--ramped-seeds", "0"])
     assert "--ramped-seeds" in capsys.readouterr().err
+
+
+def test_ramped_identification_cycles_reach_the_identification_and_differ_from_calibration(
+        capsys: pytest.CaptureFixture[str], tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    with pytest.raises(SystemExit):
+        calibrate_black_box.main(["--ramped-seeds", "5", "6", "--ident-ramped-seeds", "6", "10"])
+    assert "--ident-ramped-seeds" in capsys.readouterr().err
+    seen: dict = {}
+
+    def identify(out: object, **kw: object) -> dict:
+        seen.update(kw)
+        return {"models": {"rpem": {"path": "x"}}}
+
+    def sweep(fn: object, tasks: list, **kw: object) -> list:
+        return [{"model": t["model"], "config": t["config"], "seed": t["seed"], "nox": 1.0, "slip": 0.0,
+                 "adblue_g": 1.0, "failures": 0.0} for t in tasks]
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(calibrate_black_box, "identify_for_control", identify)
+    monkeypatch.setattr(calibrate_black_box, "run_sweep", sweep)
+    calibrate_black_box.main(["--models", "rpem", "--seeds", "5", "--ident-ramped-seeds", "10", "11"])
+    assert seen["ramped_seeds"] == [10, 11]
+    calibrate_black_box.main(["--models", "rpem", "--seeds", "5"])
+    assert seen["ramped_seeds"] is None   # the loop's default data
