@@ -30,6 +30,7 @@ def test_identified_reuses_saved_models_without_identifying(tmp_path, monkeypatc
     def refuse(*a, **k):
         raise AssertionError("identified again")
 
+    monkeypatch.chdir(tmp_path)   # the run folder goes under ./runs, not the checkout's
     monkeypatch.setattr(calibrate_black_box, "identify_for_control", refuse)
     doc = calibrate_black_box.main(["--models", "rpem", "--seeds", "5", "--duration", "10", "--identified",
                                     str(tmp_path / "prev.json"), "--configs", '{"anr_band_hi": null}',
