@@ -206,7 +206,7 @@ class Record:
         return len(self.u)
 
 
-def _random_family(cycle: str) -> str:
+def random_family(cycle: str) -> str:
     """``cycle`` checked: a seeded random-cycle family of :data:`scr_env.cycles.RANDOM_CYCLES` (records come from
     seeded random cycles only; never the held-out WHTC/WHSC)."""
     from scr_env.cycles import RANDOM_CYCLES, is_random_cycle
@@ -293,7 +293,7 @@ def edge_seeking_record(seed: int, dosing: EdgeSeekingDosing | None = None, dura
 
     dz = dosing or EdgeSeekingDosing()
     kw = {} if duration_s is None else {"random_cycle_duration_s": float(duration_s)}
-    env = UreaSCREnv(cycle=_random_family(cycle), dt=dt, nh3_sensor=True, **kw)
+    env = UreaSCREnv(cycle=random_family(cycle), dt=dt, nh3_sensor=True, **kw)
     env.reset(seed=seed)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xED6E]))
     max_rate = env.max_rate_g_s
@@ -333,7 +333,7 @@ def open_loop_record(seed: int, dosing: ControlRelevantDosing | None = None, dur
 
     dosing = dosing or ControlRelevantDosing()
     kw = {} if duration_s is None else {"random_cycle_duration_s": float(duration_s)}
-    env = UreaSCREnv(cycle=_random_family(cycle), dt=dt, nh3_sensor=True, **kw)
+    env = UreaSCREnv(cycle=random_family(cycle), dt=dt, nh3_sensor=True, **kw)
     _, info = env.reset(seed=seed)
     n = int(info["n_steps"])
     anr, floor = dosing.anr_sequence(n, dt, seed)
@@ -365,7 +365,7 @@ def closed_loop_record(policy: Any, seed: int, dither: float = 0.1, dither_hold_
     kw["nh3_sensor"] = True
     if duration_s is not None:
         kw["random_cycle_duration_s"] = float(duration_s)
-    env = UreaSCREnv(cycle=_random_family(cycle), dt=dt, **kw)
+    env = UreaSCREnv(cycle=random_family(cycle), dt=dt, **kw)
     obs, info = env.reset(seed=seed)
     n = int(info["n_steps"])
     e = RandomSteps(-dither, dither, *dither_hold_s).generate(n, dt, np.random.SeedSequence([int(seed), 0xD17])) \

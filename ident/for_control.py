@@ -99,12 +99,12 @@ def identification_records(seeds: Sequence[int] = IDENT_SEEDS, designs: Sequence
             elif d == "edge_seeking":
                 out.append(edge_seeking_record(int(s), duration_s=duration_s, cycle=cycle))
             elif d == "overdosing":
-                from ident.control_relevant import _random_family
+                from ident.control_relevant import random_family
                 from ident.excitation import RandomSteps
                 from ident.plant_data import excitation_dataset
 
                 kw = {} if duration_s is None else {"random_cycle_duration_s": float(duration_s)}
-                ds = excitation_dataset(_random_family(cycle), seed=int(s), base_anr=1.0,
+                ds = excitation_dataset(random_family(cycle), seed=int(s), base_anr=1.0,
                                         excitation=RandomSteps(-0.9, 1.0, 20.0, 200.0), **kw)
                 out.append(Record(u=ds.u, y=ds.y, nh3_sensor=ds.y[:, 1], dt=ds.dt, meta={"kind": d, "seed": int(s)}))
             else:
