@@ -35,16 +35,18 @@ import numpy as np
 
 from control.mpc import N_DISTURBANCE, MPCWeights, NonlinearMPC, solver_defaults
 from control.protocol import rate_to_action
-from ident.control_relevant import FeatureMap, nh3_output, nh3_ppm_from_output, nox_output, nox_ppm_from_output
+from ident.control_relevant import (
+    FeatureMap,
+    nh3_output,
+    nh3_ppm_from_output,
+    nox_output,
+    nox_ppm_from_output,
+    smooth_positive_part,
+)
 from scr_env.constants import NH3_MOL_PER_G_ADBLUE, NH3_MOLAR_MASS_G_MOL, NO2_MOLAR_MASS_G_MOL
 
 #: observation indices: upstream NOx, inlet T, flow, tailpipe NOx sensor, previous action, NH3 sensor
 OBS_NOX_IN, OBS_T, OBS_FLOW, OBS_NOX_SENSOR, OBS_NH3_SENSOR = 0, 1, 2, 3, 5
-
-
-def _softplus0(v: Any, eps: float) -> Any:
-    """Smooth max(v, 0) (within eps/2 of it)."""
-    return 0.5 * (v + ca.sqrt(v * v + eps * eps))
 
 
 class BlackBoxModel:
@@ -177,8 +179,8 @@ class BlackBoxModel:
         nox_model = nox_ppm_from_output(self.nox_kind, y[i] * self.ys[i] + self.ym[i], nox_in)
         nh3_model = nh3_ppm_from_output(self.nh3_kind, y[j] * self.ys[j] + self.ym[j])
         if smooth and self.output_smoothing > 0:
-            nox_model = _softplus0(nox_model, self.output_smoothing)
-            nh3_model = _softplus0(nh3_model, self.output_smoothing)
+            nox_model = smooth_positive_part(nox_model, self.output_smoothing)
+            nh3_model = smooth_positive_part(nh3_model, self.output_smoothing)
         if self.disturbance == "gain":
             return nox_model * (1.0 + dn), nh3_model + dh
         if self.disturbance == "output":

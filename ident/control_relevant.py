@@ -80,6 +80,13 @@ def _is_sym(*xs: Any) -> bool:
     return any(isinstance(x, (ca.SX, ca.MX, ca.DM)) for x in xs)
 
 
+def smooth_positive_part(v: Any, eps: float) -> Any:
+    """A smooth max(v, 0): 0.5 (v + sqrt(v^2 + eps^2)), within eps/2 of it and differentiable for the NMPC;
+    ``v`` a number, a numpy array or a CasADi expression."""
+    sqrt = ca.sqrt if _is_sym(v) else np.sqrt
+    return 0.5 * (v + sqrt(v * v + eps * eps))
+
+
 def feature_values(name: str, adblue_g_s: Any, nox_ppm: Any, temp_k: Any, flow: Any) -> Any:
     """One feature (module docstring) from the dose [g/s] and the disturbances (numpy arrays, floats or CasADi)."""
     sym = _is_sym(adblue_g_s, nox_ppm, temp_k, flow)
@@ -111,9 +118,8 @@ def feature_values(name: str, adblue_g_s: Any, nox_ppm: Any, temp_k: Any, flow: 
     if name == "surplus_ppm":
         return surplus_ppm
     if name in ("log_deficit", "log_excess"):
-        sqrt, log = (ca.sqrt, ca.log) if sym else (np.sqrt, np.log)
-        v = surplus_ppm if name == "log_excess" else -surplus_ppm
-        part = 0.5 * (v + sqrt(v * v + SURPLUS_SMOOTH_PPM ** 2))
+        log = ca.log if sym else np.log
+        part = smooth_positive_part(surplus_ppm if name == "log_excess" else -surplus_ppm, SURPLUS_SMOOTH_PPM)
         if name == "log_excess":
             return log(part + EXCESS_FLOOR_PPM)
         return log(part / (fmax(nox_ppm, 0.0) + RATIO_EPS_PPM) + DEFICIT_RATIO_FLOOR)

@@ -12,6 +12,7 @@ from ident.control_relevant import (
     RATIO_EPS_PPM,
     FeatureMap,
     feature_values,
+    smooth_positive_part,
 )
 from scr_env.constants import NH3_MOL_PER_G_ADBLUE
 
@@ -100,3 +101,13 @@ def test_spill_features_match_a_finite_difference_across_anr_one() -> None:
     for name in ("log_deficit", "log_excess"):
         v = feature_values(name, doses, np.array([0.0, NOX_PPM, 2000.0]), T_K, np.array([0.0, FLOW_MOL_S, 20.0]))
         assert v.shape == (3,) and np.all(np.isfinite(v))
+
+
+def test_smooth_positive_part_is_within_half_eps_of_the_max_in_numpy_and_casadi() -> None:
+    v = np.linspace(-50.0, 50.0, 201)
+    eps = 2.0
+    got = smooth_positive_part(v, eps)
+    assert np.all(got >= np.maximum(v, 0.0)) and np.all(got - np.maximum(v, 0.0) <= eps / 2 + 1e-12)
+    x = ca.SX.sym("x")
+    f = ca.Function("f", [x], [smooth_positive_part(x, eps)])
+    np.testing.assert_allclose(np.asarray(f(ca.DM(v).T)).ravel(), got, rtol=1e-12)
