@@ -307,8 +307,9 @@ class BlackBoxEstimator:
         return self.model.prepare(observation, applied_dose_g_s)
 
 
-def _optional_anr(name: str, value: float | None) -> float | None:
-    """A band's ANR setting: a number >= 0 or None (ValueError naming ``name``)."""
+def _optional_nonnegative(name: str, value: float | None) -> float | None:
+    """An optional band setting (an ANR, a release threshold in ppm): a number >= 0 or None (ValueError naming
+    ``name``)."""
     if value is not None and not (np.isfinite(value) and value >= 0):
         raise ValueError(f"{name} must be a number >= 0 or None, got {value!r}")
     return None if value is None else float(value)
@@ -353,15 +354,13 @@ class BlackBoxMPC(NonlinearMPC):
                  band_lo_hot: float | None = None, band_hot_k: float = 573.15, band_hi_cold: float | None = None,
                  band_cold_k: float = 523.15, **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)
-        self.band_hi_cold = _optional_anr("band_hi_cold", band_hi_cold)
+        self.band_hi_cold = _optional_nonnegative("band_hi_cold", band_hi_cold)
         self.band_cold_k = _band_temperature("band_cold_k", band_cold_k)
-        self.band_lo_hot = _optional_anr("band_lo_hot", band_lo_hot)
+        self.band_lo_hot = _optional_nonnegative("band_lo_hot", band_lo_hot)
         self.band_hot_k = _band_temperature("band_hot_k", band_hot_k)
-        if band_release_ppm is not None and not (np.isfinite(band_release_ppm) and band_release_ppm >= 0):
-            raise ValueError(f"band_release_ppm must be a number >= 0 or None, got {band_release_ppm!r}")
+        self.band_release_ppm = _optional_nonnegative("band_release_ppm", band_release_ppm)
         if not (np.isfinite(band_release_s) and band_release_s >= 0):
             raise ValueError(f"band_release_s must be a number >= 0, got {band_release_s!r}")
-        self.band_release_ppm = None if band_release_ppm is None else float(band_release_ppm)
         self.band_release_s = float(band_release_s)
         self.stages = [int(k) for k in stages]
         self.anr_band = anr_band
