@@ -68,6 +68,11 @@ class BlackBoxModel:
     initial_state : ``f(z0) -> x0`` at the start of an episode (default: zeros).
     linear : ``(A, B_fn)`` for a model whose state is linear, ``x+ = A x + B v(z)`` with ``B_fn(z) -> B v``, so a
         stage of k steps is exact in one expression (Hammerstein-Wiener, linear); None: k explicit steps.
+    input_filters : ``[(column, tau_s), ...]``: the model takes, after the ``features``, first-order low-pass
+        filtered copies of these feature columns (normalised; :func:`ident.for_control.filtered_inputs`). Their
+        filter states follow the model state (deterministic: no process noise, started at rest on the first
+        observation's feature with no dose) and are propagated over the horizon from the planned doses; over a
+        stage of the linear path the filtered input is held at its value at the stage start.
     """
 
     def __init__(self, step: ca.Function, features: FeatureMap, z_mean: Sequence[float], z_scale: Sequence[float],
@@ -82,7 +87,7 @@ class BlackBoxModel:
                  output_smoothing: float = 1.0, nh3_kind: str = "ppm", dist_states: tuple[int, int] = (0, 1),
                  theta_step: ca.Function | None = None, theta0: Sequence[float] | None = None,
                  adaptation: Any = None, adaptation_filter_s: float = 2.0,
-                 nh3_dist_tau_s: float | None = None) -> None:
+                 nh3_dist_tau_s: float | None = None, input_filters: Sequence[tuple[int, float]] = ()) -> None:
         if disturbance not in ("output", "gain", "none", "state"):
             raise ValueError(f"disturbance must be 'output', 'gain', 'state' or 'none', got {disturbance!r}")
         if nh3_dist_tau_s is not None and not (np.isfinite(nh3_dist_tau_s) and nh3_dist_tau_s > 0):
@@ -102,8 +107,19 @@ class BlackBoxModel:
         self.linear = linear
         self.terminal_cost_fn = terminal_cost
         self.initial_state_fn = initial_state
-        self.nx = int(step.size1_in(0))
-        self.nz = int(step.size1_in(1))
+        self.input_filters = [(int(i), float(tau)) for i, tau in input_filters]
+        self.nf = len(self.input_filters)
+        self.nx_model = int(step.size1_in(0))
+        self.nx = self.nx_model + self.nf
+        self.nz = int(step.size1_in(1)) - self.nf
+        if any(not 0 <= i < self.nz or not (np.isfinite(tau) and tau > 0) for i, tau in self.input_filters):
+            raise ValueError(f"input_filters: (feature column in [0, {self.nz}), time constant > 0 [s]) pairs, got "
+                             f"{list(input_filters)!r}")
+        if self.nf and linear is not None and len(linear[0]) != self.nx_model:
+            raise ValueError("input_filters: the linear part (A) must be of the model state, without the filters")
+        from ident.for_control import input_filter_coefficient
+
+        self._filter_a = [input_filter_coefficient(tau, model_dt) for _, tau in self.input_filters]
         # online adaptation (control.online_rpem): the model's parameters as an input of theta_step, NLP parameters
         self.theta_step = theta_step
         self.theta_ = np.asarray(theta0 if theta0 is not None else [], float).ravel().copy()
@@ -116,8 +132,9 @@ class BlackBoxModel:
         self.adaptation_filter_s = float(adaptation_filter_s)
         if self.nz != len(features):
             raise ValueError(f"step takes {self.nz} inputs but the feature map has {len(features)}")
-        lo, hi = state_bounds or (np.full(self.nx, -50.0), np.full(self.nx, 50.0))
-        self._bounds = (np.asarray(lo, float), np.asarray(hi, float))
+        lo, hi = state_bounds or (np.full(self.nx_model, -50.0), np.full(self.nx_model, 50.0))
+        self._bounds = (np.r_[np.asarray(lo, float), np.full(self.nf, -1e6)],
+                        np.r_[np.asarray(hi, float), np.full(self.nf, 1e6)])
         self.n_stage_params = 2 + self.n_theta     # (d_nox, d_nh3), held over the horizon; the parameters
         self.n_terminal_params = 0
         self.measured_obs = (OBS_NOX_SENSOR, OBS_NH3_SENSOR) if self.nh3_sensor else (OBS_NOX_SENSOR,)
@@ -133,13 +150,13 @@ class BlackBoxModel:
         aug = ca.Function("step_aug", [xa, ua], [ca.vertcat(xn, dn, self.nh3_dist_decay(1) * dh), ym])
         from control.estimation import ExtendedKalmanFilter
 
-        qx = np.broadcast_to(np.asarray(q_state, float), (self.nx,))
+        qx = np.r_[np.broadcast_to(np.asarray(q_state, float), (self.nx_model,)), np.zeros(self.nf)]
         qd = np.asarray(q_dist, float) if disturbance != "none" else np.zeros(2)
         r = np.asarray(r_sensor, float)[: (2 if self.nh3_sensor else 1)]
         blo = (np.r_[self._bounds[0], -np.inf, -np.inf] if disturbance != "gain"
                else np.r_[self._bounds[0], -0.95, -np.inf])
         bhi = np.r_[self._bounds[1], np.inf, np.inf]
-        p0x = np.broadcast_to(np.asarray(p0_state, float), (self.nx,))
+        p0x = np.r_[np.broadcast_to(np.asarray(p0_state, float), (self.nx_model,)), np.zeros(self.nf)]
         self.output_smoothing = output_smoothing
         self.ekf_ = ExtendedKalmanFilter(aug, np.r_[qx, qd], r, state_bounds=(blo, bhi),
                                          p0=np.r_[p0x, (0.04 if disturbance == "gain" else 100.0), 25.0])
@@ -156,7 +173,15 @@ class BlackBoxModel:
         return float(np.exp(-steps * self.model_dt / self.nh3_dist_tau_s))
 
     def _call(self, x: Any, z: Any, theta: Any) -> tuple[Any, Any]:
-        """The model step at parameters ``theta`` (ignored without ``theta_step``: the fixed model)."""
+        """The model step at parameters ``theta`` (ignored without ``theta_step``: the fixed model); with
+        ``input_filters``, ``x`` ends with the filter states, which enter the model as inputs after ``z`` and follow
+        ``s+ = s + a (z_i - s)``."""
+        if self.nf:
+            xm, sf = x[:self.nx_model], x[self.nx_model:]
+            zx = ca.vertcat(z, sf)
+            xn, y = self.step(xm, zx) if self.theta_step is None else self.theta_step(xm, zx, theta)[:2]
+            sn = [sf[c] + a * (z[i] - sf[c]) for c, ((i, _), a) in enumerate(zip(self.input_filters, self._filter_a))]
+            return ca.vertcat(xn, *sn), y
         if self.theta_step is None:
             return self.step(x, z)
         out = self.theta_step(x, z, theta)
@@ -201,7 +226,15 @@ class BlackBoxModel:
             A, bfun = self.linear
             Ak = np.linalg.matrix_power(A, k)
             S = sum(np.linalg.matrix_power(A, j) for j in range(k))
-            xe = ca.mtimes(ca.DM(Ak), x) + ca.mtimes(ca.DM(S), bfun(z) + ed)
+            nxm = self.nx_model
+            if self.nf:   # the filtered inputs held at the stage start; their states exact at the end
+                xm, sf = x[:nxm], x[nxm:]
+                xme = ca.mtimes(ca.DM(Ak), xm) + ca.mtimes(ca.DM(S), bfun(ca.vertcat(z, sf)) + ed[:nxm])
+                sn = [sf[c] + (1.0 - (1.0 - a) ** k) * (z[i] - sf[c])
+                      for c, ((i, _), a) in enumerate(zip(self.input_filters, self._filter_a))]
+                xe = ca.vertcat(xme, *sn)
+            else:
+                xe = ca.mtimes(ca.DM(Ak), x) + ca.mtimes(ca.DM(S), bfun(z) + ed)
         else:
             xe = x
             lo, hi = self._bounds
@@ -245,7 +278,11 @@ class BlackBoxModel:
         """Start the EKF at the model's rest state for the first observation, zero disturbances."""
         obs = np.asarray(observation, float)
         z0 = np.asarray(self.z_norm(0.0, obs[OBS_NOX_IN], obs[OBS_T], obs[OBS_FLOW]), float)
-        x0 = np.zeros(self.nx) if self.initial_state_fn is None else np.asarray(self.initial_state_fn(z0), float)
+        s0 = np.asarray([z0[i] for i, _ in self.input_filters], float)   # the filters at rest, no dose
+        z0 = np.r_[z0, s0]
+        x0 = np.zeros(self.nx_model) if self.initial_state_fn is None else \
+            np.asarray(self.initial_state_fn(z0), float)
+        x0 = np.r_[x0, s0]
         self.ekf_.reset(np.r_[x0, 0.0, 0.0])
         self._u_last = None
         self._filtered: np.ndarray | None = None
@@ -261,7 +298,8 @@ class BlackBoxModel:
         if self.adaptation is not None:
             y_meas = self._measured_outputs(obs)
             informative = float(self._filtered[0]) >= self.adaptation.min_nox_ppm
-            self.theta_ = self.adaptation.observe(y_meas, z, informative).copy()
+            zm = np.r_[z, self.ekf_.x_[self.nx_model:self.nx]]   # the model's inputs: features, filtered ones
+            self.theta_ = self.adaptation.observe(y_meas, zm, informative).copy()
         ua = np.r_[z, nox_in, self.theta_]
         if self._u_last is not None:
             ym = [obs[OBS_NOX_SENSOR]] + ([obs[OBS_NH3_SENSOR]] if self.nh3_sensor else [])
@@ -593,10 +631,15 @@ NMPC_SETTINGS: dict[str, dict[str, Any]] = {
     #   hot band: 0.989 at 28.2;  3.0 + hot: 0.905 at 46.1;  2.0 + hot: 1.102 [1.418 / 0.471] at 12.8;  1.75 + hot:
     #   1.168 at 18.5;  1.5 + hot 1.05: 1.223 at 9.67;  a cold upper band 1.5 below 523 / 573 K + hot band: 1.178 at
     #   34.1 / 1.259 at 19.5;  band_hi 1.5, cold band 3.0 below 573 K + hot band: 0.909 at 36.1;  band_hi 1.5: 1.458 at
-    #   1.65;  band_hi 1.5 + hot band 1.0 above 548 K: 1.249 [1.607 / 0.534] at 7.22 <- chosen.
+    #   1.65;  band_hi 1.5 + hot band 1.0 above 548 K: 1.249 [1.607 / 0.534] at 7.22 <- chosen in the fourth round.
+    #   sixth round (2026-11-28): the RPEM identified with the surplus low-pass filtered over 300 s as a fifth input
+    #   (control.loop.INPUT_FILTERS; ``--rpem-fit '{"multistep_horizon": 160, "max_nfev": 10, "input_filters":
+    #   [["surplus_ppm", 300.0]]}'``), same twelve cycles and rule: fourth-round design (band_hi 1.5 + hot band):
+    #   1.270 [1.677 / 0.455] at 2.46;  band_hi 2.5 + hot band: 1.005 [1.341 / 0.334] at 11.0 (ramped);  band_hi 6, no
+    #   hot band (the third-round design): 0.676 [0.894 / 0.240] at 4.61 <- chosen.
     "rpem": {"disturbance": "state", "q_state": 1e-4, "q_dist": (1e-5, 1e-5), "r_sensor": (25.0, 4.0),
-             "terminal_s": 120.0, "anr_band_hi": 1.5, "anr_band_lo": 0.8, "nh3_dist_tau_s": 300.0,
-             "anr_band_lo_hot": 1.0, "band_hot_k": 548.15},
+             "terminal_s": 120.0, "anr_band_hi": 6.0, "anr_band_lo": 0.8, "nh3_dist_tau_s": 300.0,
+             "anr_band_lo_hot": None, "band_hot_k": 548.15},
     # Hammerstein-Wiener: q_dist (0.4, 0.1) ppm^2 per step chosen by ``python -m experiments.calibrate_black_box
     # --models hammerstein_wiener --seeds 5 6 --duration 600 --configs ...`` over q_dist (4, 1) / (40, 10) /
     # (0.4, 0.1), terminal_s 0, anr_band_lo 0 / 0.8 / 0.9 / 1.0 (calibration cycles 5-6: 0.532 g/kWh at 7.70 ppm with
@@ -654,7 +697,7 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
     (RPEM only; None: the setting ``online_adaptation``): the RPEM's parameters re-estimated while the NMPC runs
     (:class:`control.online_rpem.OnlineRPEM` with the options of the setting ``adaptation``)."""
     from control.factory import IDENT_SOLVER, SLIP_GUARD_PPM
-    from ident.for_control import hw_linear_export
+    from ident.for_control import check_input_filters, hw_linear_export
 
     kind = info.get("kind")
     if kind not in NMPC_SETTINGS:
@@ -664,7 +707,8 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
     common = {"nox_kind": info["nox_kind"], "nh3_kind": info["nh3_kind"], "output_smoothing": 0.0,
               "disturbance": cfg["disturbance"] if offset_free else "none", "q_dist": cfg["q_dist"],
               "r_sensor": cfg["r_sensor"], "nh3_sensor": nh3_sensor,
-              "nh3_dist_tau_s": cfg.get("nh3_dist_tau_s") if offset_free else None}
+              "nh3_dist_tau_s": cfg.get("nh3_dist_tau_s") if offset_free else None,
+              "input_filters": check_input_filters(info.get("input_filters", ()), info["features"])}
     features = FeatureMap(tuple(info["features"]))
     if kind == "rpem":
         step = model.to_casadi()

@@ -89,7 +89,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--closed-loop-iterations", type=int, default=None,
                     help="iterations of closed-loop identification of the RPEM (models rpem-iter<i> kept)")
     ap.add_argument("--closed-loop-nmpc", default="{}", help="JSON overrides of the closed-loop experiments' NMPC")
-    ap.add_argument("--hw-fit", default="{}", help="JSON dict of ident.for_control.fit_hw_for_control options")
+    ap.add_argument("--hw-fit", default=None, help="JSON dict of ident.for_control.fit_hw_for_control options "
+                    "(default: control.loop.HW_FIT)")
     ap.add_argument("--rpem-fit", default=None, help="JSON dict of ident.for_control.fit_rpem_for_control options")
     add_arguments(ap)
     args = ap.parse_args(argv)
@@ -106,7 +107,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     except json.JSONDecodeError as exc:
         ap.error(f"--configs: not JSON ({exc})")
     try:
-        hw_fit = json.loads(args.hw_fit)
+        hw_fit = None if args.hw_fit is None else json.loads(args.hw_fit)
         rpem_fit = None if args.rpem_fit is None else json.loads(args.rpem_fit)
     except json.JSONDecodeError as exc:
         ap.error(f"--hw-fit/--rpem-fit: not JSON ({exc})")

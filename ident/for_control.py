@@ -112,6 +112,57 @@ def identification_records(seeds: Sequence[int] = IDENT_SEEDS, designs: Sequence
     return out
 
 
+def input_filter_coefficient(tau_s: float, dt: float) -> float:
+    """The per-sample gain a of a first-order low-pass with time constant ``tau_s`` [s] sampled every ``dt`` [s]
+    (exact for an input held over the sample): ``s+ = s + a (z - s)``, ``a = 1 - exp(-dt / tau_s)``."""
+    return float(-np.expm1(-float(dt) / float(tau_s)))
+
+
+def check_input_filters(input_filters: Sequence[Sequence[Any]], features: Sequence[str]) -> list[tuple[int, float]]:
+    """``[(feature, tau_s), ...]`` (the setting ``input_filters``) as ``[(column of the feature, tau_s)]``;
+    ValueError naming ``input_filters`` for a feature the model does not have or a time constant that is not > 0."""
+    out = []
+    for spec in input_filters:
+        if isinstance(spec, (str, bytes)) or len(spec) != 2:
+            raise ValueError(f"input_filters: each entry is (feature, time constant in s), got {spec!r}")
+        name, tau = spec
+        if name not in features:
+            raise ValueError(f"input_filters: feature {name!r} is not among the model's features {list(features)}")
+        if isinstance(tau, bool) or not isinstance(tau, (int, float, np.number)) or not (np.isfinite(tau) and tau > 0):
+            raise ValueError(f"input_filters: the time constant of {name!r} must be a number > 0 [s], got {tau!r}")
+        out.append((list(features).index(name), float(tau)))
+    return out
+
+
+def filtered_inputs(z: np.ndarray, filters: Sequence[tuple[int, float]], dt: float) -> np.ndarray:
+    """(n, len(filters)) low-pass filtered feature columns of one record: for each ``(column i, tau_s)``, the
+    first-order filter ``s[0] = z[0, i]`` (at rest), ``s[t] = s[t-1] + a (z[t-1, i] - s[t-1])``
+    (:func:`input_filter_coefficient`), so that ``s[t]`` depends on the inputs before t only, as the model's step
+    into sample t (the NMPC propagates the same recursion, :class:`control.blackbox.BlackBoxModel`)."""
+    from scipy.signal import lfilter
+
+    z = np.asarray(z, float)
+    out = np.empty((len(z), len(filters)))
+    for c, (i, tau) in enumerate(filters):
+        a = input_filter_coefficient(tau, dt)
+        out[0, c] = z[0, i]
+        if len(z) > 1:
+            out[1:, c] = lfilter([a], [1.0, a - 1.0], z[:-1, i], zi=[(1.0 - a) * z[0, i]])[0]
+    return out
+
+
+def model_arrays(records: Sequence[Any], info: dict[str, Any]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per record (model inputs, outputs) of a model described by ``info`` (:func:`fit_rpem_for_control`,
+    :func:`fit_hw_for_control`): the features of :func:`control_arrays`, then their ``input_filters`` columns;
+    unnormalised."""
+    arrs = control_arrays(records, info["features"], info.get("nox_kind", NOX_KIND), info.get("nh3_kind", NH3_KIND))
+    filters = check_input_filters(info.get("input_filters", ()), info["features"])
+    if not filters:
+        return arrs
+    return [(np.column_stack([z, filtered_inputs(z, filters, float(r.dt))]), y) for (z, y), r in
+            zip(arrs, records, strict=True)]
+
+
 def control_arrays(records: Sequence[Any], features: Sequence[str] = CONTROL_FEATURES, nox_kind: str = NOX_KIND,
                    nh3_kind: str = NH3_KIND) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per record (features (n, m), outputs (n, 2): NOx and NH3 in the ``nox_kind`` / ``nh3_kind`` representation,
@@ -130,28 +181,38 @@ def _check_inputs(n_inputs: int) -> None:
                          f"{len(CONTROL_FEATURES) + len(SPILL_FEATURES)} (with SPILL_FEATURES), got {n_inputs!r}")
 
 
-def rpem_storage_terms(k: int, n_inputs: int = 4) -> list[str]:
+def rpem_storage_terms(k: int, n_inputs: int = 4, n_filtered: int = 0) -> list[str]:
     """Candidate regressor of chain ``k`` (1 = NOx, 2 = NH3) of the two-output, one-state-per-chain RPEM: the
     thesis' polynomial in states and inputs extended with products that can express storage (state x input,
     state x input x input, input x input) and derivatives of the exogenous inputs (issue 18); inputs as
     :data:`CONTROL_FEATURES` (u1 surplus, u2 inlet NOx, u3 exp(-a/T), u4 flow). Inputs beyond the fourth (the
-    :data:`SPILL_FEATURES`) add themselves, times the own state and times exp(-a/T)."""
+    :data:`SPILL_FEATURES`) add themselves, times the own state and times exp(-a/T). The ``n_filtered`` low-pass
+    filtered inputs (``input_filters``, numbered after the ``n_inputs`` features) add themselves, times each state,
+    times every exogenous input and the temperature's derivative (a surplus accumulated in the past meeting a
+    heat-up), times the surplus, squared, and times the own state and exp(-a/T)."""
     _check_inputs(n_inputs)
+    if isinstance(n_filtered, bool) or not isinstance(n_filtered, (int, np.integer)) or n_filtered < 0:
+        raise ValueError(f"n_filtered must be an integer >= 0, got {n_filtered!r}")
     o, q = f"x{k}", ("x2" if k == 1 else "x1")
     extra = [f"u{j}" for j in range(5, n_inputs + 1)]
-    t = ["1", o, q, "u1", "u2", "u3", "u4", *extra, f"{o}*{q}", f"{o}^2", f"{q}^2"]
+    filt = [f"u{j}" for j in range(n_inputs + 1, n_inputs + n_filtered + 1)]
+    t = ["1", o, q, "u1", "u2", "u3", "u4", *extra, *filt, f"{o}*{q}", f"{o}^2", f"{q}^2"]
     for x in (o, q):
         t += [f"{x}*u{j}" for j in (1, 2, 3, 4)]
     t += ["u1*u3", "u1*u4", "u2*u3", "u2*u4", "u3*u4", f"{o}*u1*u3", f"{o}*u1*u4", f"{q}*u1*u3"]
     t += ["u3'", "u4'", "u2'", f"{o}*u3'", f"{o}*u4'", f"{o}*u2'"]
     t += [f"{o}*{u}" for u in extra] + [f"{u}*u3" for u in extra]
+    for u in filt:
+        t += [f"{o}*{u}", f"{q}*{u}", f"{u}*u3", f"{u}*u4", f"{u}*u2", f"{u}*u3'", f"{u}*u1", f"{u}^2",
+              f"{o}*{u}*u3"]
     return t
 
 
-def paper3_terms(k: int, n_inputs: int = 4) -> list[str]:
-    """The ablation's "no storage regressors": the linear regressor of Paper III per chain (states, inputs, 1)."""
+def paper3_terms(k: int, n_inputs: int = 4, n_filtered: int = 0) -> list[str]:
+    """The ablation's "no storage regressors": the linear regressor of Paper III per chain (states, inputs, 1);
+    the ``n_filtered`` filtered inputs are inputs too."""
     _check_inputs(n_inputs)
-    return ["1", f"x{k}", ("x2" if k == 1 else "x1"), *[f"u{j}" for j in range(1, n_inputs + 1)]]
+    return ["1", f"x{k}", ("x2" if k == 1 else "x1"), *[f"u{j}" for j in range(1, n_inputs + n_filtered + 1)]]
 
 
 #: numbers of storage terms per chain the term selection tries, beyond Paper III's linear regressor [chosen]
@@ -189,7 +250,8 @@ def _rpem_ls(terms: list[list[str]], recs: Sequence[tuple[np.ndarray, np.ndarray
 
 def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, validation: Sequence[Any] | None = None,
                          multistep_horizon: int = 0, max_nfev: int = 10, ridge: float = 1e-3,
-                         features: Sequence[str] = CONTROL_FEATURES) -> tuple[Any, dict[str, Any]]:
+                         features: Sequence[str] = CONTROL_FEATURES,
+                         input_filters: Sequence[Sequence[Any]] = ()) -> tuple[Any, dict[str, Any]]:
     """The RPEM for the NMPC: two one-state chains (log NOx slip ratio, log NH3) on ``features``: the four of
     :data:`CONTROL_FEATURES` first, optionally followed by :data:`SPILL_FEATURES`.
 
@@ -199,8 +261,12 @@ def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, val
     multi-step prediction FIT over :data:`SELECTION_HORIZON` samples on the ``validation`` records (default: the
     last record; Shook, Mohtadi and Shah 1991: the predictor the NMPC uses). Parameters: ridge equation-error
     estimate, refined with ``multistep_horizon`` > 0 by the multi-step prediction error
-    (:func:`ident.rpem.multistep.fit_multistep`). Returns the fitted :class:`~ident.rpem.RecursivePEM` (inputs:
-    scaled features) and the JSON-able description the NMPC needs."""
+    (:func:`ident.rpem.multistep.fit_multistep`). ``input_filters``: ``[(feature, tau_s), ...]``, first-order low-pass filtered copies of features added as further
+    inputs (:func:`filtered_inputs`; a linear dynamic transform of a measured signal, as the Laguerre-type filtered
+    regressors of black-box identification: a surplus dosed minutes ago is the record of what the catalyst may
+    hold, which the one-state chains cannot keep), with storage candidates of their own. Returns the fitted
+    :class:`~ident.rpem.RecursivePEM` (inputs: scaled features, then the filtered ones) and the JSON-able
+    description the NMPC needs."""
     from ident.rpem.multistep import fit_multistep, rpem_from_theta
     from ident.rpem.storage_terms import ols_order
 
@@ -209,15 +275,18 @@ def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, val
     if features[:n0] != CONTROL_FEATURES or any(f not in SPILL_FEATURES for f in features[n0:]) \
             or len(set(map(str, features))) != len(features):
         raise ValueError(f"features must be {CONTROL_FEATURES} followed by any of {SPILL_FEATURES}, got {features!r}")
-    m = len(features)
-    zs, ys = np.asarray([RPEM_FEATURE_SCALES[f] for f in features]), np.asarray(RPEM_OUTPUT_SCALE)
-    recs = [(z * zs, y * ys) for z, y in control_arrays(records, features)]
+    filters = check_input_filters(input_filters, features)
+    m, nf = len(features), len(filters)
+    zs = np.asarray([RPEM_FEATURE_SCALES[f] for f in features] + [RPEM_FEATURE_SCALES[features[i]] for i, _ in filters])
+    ys = np.asarray(RPEM_OUTPUT_SCALE)
+    spec = {"features": list(features), "input_filters": [[features[i], tau] for i, tau in filters]}
+    recs = [(z * zs, y * ys) for z, y in model_arrays(records, spec)]
     dt = float(records[0].dt)
-    base = [paper3_terms(k, m) for k in (1, 2)]
+    base = [paper3_terms(k, m, nf) for k in (1, 2)]
     candidates = [base]
     selection: dict[str, Any] = {}
     if storage_terms:
-        full = [rpem_storage_terms(k, m) for k in (1, 2)]
+        full = [rpem_storage_terms(k, m, nf) for k in (1, 2)]
         tmpl, _ = _rpem_ls(full, recs, dt, ridge)
         order = []
         for k in range(2):
@@ -232,8 +301,9 @@ def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, val
         if multistep_horizon > 0:
             theta = fit_multistep(tmpl, recs, horizon=int(multistep_horizon), theta0=theta, ridge=1e-5,
                                   max_nfev=max_nfev)
-        model = rpem_from_theta(tmpl, theta, m, 2)
+        model = rpem_from_theta(tmpl, theta, m + nf, 2)
         info = _rpem_info(terms, zs, ys, multistep_horizon, len(records), features)
+        info["input_filters"] = spec["input_filters"]
         score = np.mean([k_step_fit(model.to_casadi(), info, r, SELECTION_HORIZON) for r in val]) if storage_terms \
             else 0.0
         score = float(score) if np.isfinite(score) else -np.inf
@@ -280,25 +350,32 @@ def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots
                        output_blocks: Sequence[str] = ("identity", "identity"), n_out_knots: int = 4,
                        nox_kind: str = NOX_KIND, nh3_kind: str = NH3_KIND, surplus_block: str = "identity",
                        features: Sequence[str] = CONTROL_FEATURES, multistep_horizon: int = 0,
-                       multistep_nfev: int = 40, static_blocks: bool = True) -> tuple[Any, dict[str, Any]]:
+                       multistep_nfev: int = 40, static_blocks: bool = True,
+                       input_filters: Sequence[Sequence[Any]] = ()) -> tuple[Any, dict[str, Any]]:
     """The Hammerstein-Wiener model for the NMPC: one two-output model (NOx in the ``nox_kind`` representation,
     NH3 in ``nh3_kind``; default log NOx slip ratio, log NH3) on the standardised :data:`CONTROL_FEATURES`,
     piecewise-linear input blocks (``surplus_block`` ``"identity"`` or ``"pwl"`` on the surplus, which enters both
     signs), linear dynamics, output blocks ``output_blocks`` per output (:data:`HW_OUTPUT_BLOCKS`: identity, or a
     static block that can express spill-over), on the records end to end (each record's first minute unweighted).
     ``static_blocks=False``: identity blocks on every input and output, i.e. the *linear* model class on the same
-    features and outputs (the loop's linear row and the ablation of the static blocks). Returns the fitted model and
-    its description."""
+    features and outputs (the loop's linear row and the ablation of the static blocks). ``input_filters``: low-pass
+    filtered features as further inputs, as :func:`fit_rpem_for_control` (normalised as their feature, with a
+    piecewise-linear input block each). Returns the fitted model and its description."""
     from ident.hammerstein_wiener import HammersteinWiener
     from ident.hammerstein_wiener.blocks import Identity, PiecewiseLinear
 
     if len(output_blocks) != 2:
         raise ValueError(f"output_blocks: one per output (2), got {list(output_blocks)}")
     features = tuple(features)
-    arrs = control_arrays(records, features, nox_kind=nox_kind, nh3_kind=nh3_kind)
-    Z = np.vstack([z for z, _ in arrs])
+    filters = check_input_filters(input_filters, features)
+    spec = {"features": list(features), "input_filters": [[features[i], tau] for i, tau in filters],
+            "nox_kind": nox_kind, "nh3_kind": nh3_kind}
+    arrs = model_arrays(records, spec)
+    Z = np.vstack([z[:, :len(features)] for z, _ in arrs])
     zm, zsd = Z.mean(axis=0), Z.std(axis=0)
     zm[0] = 0.0   # the dose feature (first) keeps its zero (no dose, no surplus)
+    # a filtered input is normalised as its feature (the NMPC filters the normalised feature)
+    zm, zsd = np.r_[zm, [zm[i] for i, _ in filters]], np.r_[zsd, [zsd[i] for i, _ in filters]]
     Uc, Yc, W = concat_records([(z - zm) / zsd for z, _ in arrs], [y for _, y in arrs], warmup=120)
     ym, ysd = Yc.mean(axis=0), Yc.std(axis=0)
     # a saturation starts at the output's floor in the data (no slip, full conversion), normalised
@@ -313,6 +390,7 @@ def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots
         outs = [Identity(), Identity()]
     blocks = [Identity() if (f.startswith("surplus") and surplus_block == "identity") or not static_blocks
               else PiecewiseLinear(n_knots) for f in features]
+    blocks += [PiecewiseLinear(n_knots) if static_blocks else Identity() for _ in filters]
     model = HammersteinWiener(input_blocks=blocks, output_block=outs, nb=nb, nf=nf, nk=1, max_nfev=max_nfev,
                               initial="zero").fit(Uc, (Yc - ym) / ysd, sample_weight=W)
     if multistep_horizon > 0:
@@ -321,7 +399,7 @@ def fit_hw_for_control(records: Sequence[Any], nb: int = 2, nf: int = 2, n_knots
             "z_scale": zsd.tolist(), "y_mean": ym.tolist(), "y_scale": ysd.tolist(), "nox_kind": nox_kind,
             "nh3_kind": nh3_kind, "nb": nb, "nf": nf, "output_blocks": list(output_blocks),
             "surplus_block": surplus_block, "multistep_horizon": int(multistep_horizon), "n_records": len(records),
-            "static_blocks": bool(static_blocks)}
+            "static_blocks": bool(static_blocks), "input_filters": spec["input_filters"]}
     return model, info
 
 
@@ -331,8 +409,7 @@ def k_step_fit(step: Any, info: dict[str, Any], record: Any, horizon: int) -> li
     domain); NaN where the predictions diverge."""
     from ident.metrics import fit_percent
 
-    (z, y), = control_arrays([record], info["features"], info.get("nox_kind", NOX_KIND),
-                             info.get("nh3_kind", NH3_KIND))
+    (z, y), = model_arrays([record], info)
     zn = (z - np.asarray(info["z_mean"])) / np.asarray(info["z_scale"])
     nx = int(step.size1_in(0))
     f = step.mapaccum(horizon)

@@ -2,6 +2,8 @@
 the NMPC on the RPEM and on the Hammerstein-Wiener model running in closed loop, model files, the seed-mean gap."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -35,8 +37,10 @@ def records() -> list:
 def models(records: list, tmp_path_factory: pytest.TempPathFactory) -> dict:
     out = tmp_path_factory.mktemp("bb")
     info: dict = {"models": {}}
-    for name, (model, minfo) in {"rpem": fit_rpem_for_control(records),
-                                 "hammerstein_wiener": fit_hw_for_control(records, max_nfev=5)}.items():
+    from control.loop import HW_FIT, QUICK_RPEM_FIT
+
+    for name, (model, minfo) in {"rpem": fit_rpem_for_control(records, **QUICK_RPEM_FIT),
+                                 "hammerstein_wiener": fit_hw_for_control(records, max_nfev=5, **HW_FIT)}.items():
         info["models"][name] = {"kind": name, "path": str(save_model(model, out / f"model_{name}")), "info": minfo}
     return info
 
@@ -73,8 +77,19 @@ def test_black_box_nmpc_closes_the_loop(models: dict, name: str, capfd) -> None:
     assert "WARNING(" not in out + err   # the solvers print nothing: failures are counted (#23)
 
 
-def test_ablation_variants_switch_one_ingredient_off(models: dict) -> None:
+def test_ablation_variants_switch_one_ingredient_off(models: dict, monkeypatch: pytest.MonkeyPatch) -> None:
+    import control.loop as loop
+
     names = ablation_controllers()
+    # the filtered surplus input (loop.INPUT_FILTERS) is an identification ingredient of both models when their fit
+    # has it, and the loop's models (quick mode here) are identified with it
+    assert "mpc_rpem-no_input_filters" in names
+    assert load_for_control("rpem", models)[1]["input_filters"] == [list(f) for f in loop.INPUT_FILTERS]
+    assert ("mpc_hammerstein_wiener-no_input_filters" in names) == bool(loop.HW_FIT.get("input_filters"))
+    monkeypatch.setattr(loop, "HW_FIT", {"input_filters": loop.INPUT_FILTERS})
+    assert "mpc_hammerstein_wiener-no_input_filters" in ablation_controllers()
+    monkeypatch.setattr(loop, "RPEM_FIT", {**loop.RPEM_FIT, "input_filters": ()})
+    assert "mpc_rpem-no_input_filters" not in ablation_controllers()
     assert "mpc_rpem-no_preview" in names and "mpc_hammerstein_wiener-no_nh3_sensor" in names
     assert "mpc_rpem-no_multistep" in names and "mpc_hammerstein_wiener-no_multistep" not in names
     assert "mpc_rpem-no_multistep" not in ablation_controllers(quick=True)   # the quick fit does not refine
@@ -217,18 +232,25 @@ def _simulate(step, theta: np.ndarray, z: np.ndarray, x0: np.ndarray) -> np.ndar
     return np.asarray(ys)
 
 
-def test_online_rpem_tracks_a_changed_dose_gain_and_holds_without_information(models: dict) -> None:
+@pytest.fixture(scope="module")
+def unfiltered_rpem(records: list) -> Any:
+    """An RPEM on the four features only (no filtered input), whose inputs can be drawn at random."""
+    return fit_rpem_for_control(records)[0]
+
+
+def test_online_rpem_tracks_a_changed_dose_gain_and_holds_without_information(unfiltered_rpem: Any) -> None:
     """The adapted dose term moves most of the way to a plant whose dose gain is 50 % larger (noise-free data from
     the model itself); a plant equal to the model leaves the estimate near the identified parameters; bad settings
     and unknown terms are refused by name."""
     from control.online_rpem import OnlineRPEM
 
-    model, _ = load_for_control("rpem", models)
+    model = unfiltered_rpem
     ad = OnlineRPEM(model)
     j = ad.adapted_[1]                                   # the NOx chain's dose (u1) term
     rng = np.random.default_rng(0)
     n = 2400
-    z = np.repeat(rng.normal(scale=0.5, size=(n // 40, 4)), 40, axis=0)
+    m = int(ad.step_function.size1_in(1))                # the model's inputs (features, filtered surplus)
+    z = np.repeat(rng.normal(scale=0.5, size=(n // 40, m)), 40, axis=0)
     x0 = np.zeros(ad.step_function.size1_in(0))
     x0[2:] = z[0]
     true = model.theta_.copy()
@@ -250,20 +272,21 @@ def test_online_rpem_tracks_a_changed_dose_gain_and_holds_without_information(mo
         OnlineRPEM(model, terms=((0, "u9"),))
 
 
-def test_online_rpem_falls_back_to_the_identified_parameters(models: dict) -> None:
+def test_online_rpem_falls_back_to_the_identified_parameters(unfiltered_rpem: Any) -> None:
     """Outputs the adapted terms cannot explain (noise) make the adapted model predict worse than the identified
     one on the next windows: the estimate returns to the identified parameters (counted)."""
     from control.online_rpem import OnlineRPEM
 
-    model, _ = load_for_control("rpem", models)
+    model = unfiltered_rpem
     ad = OnlineRPEM(model, noise_sd=1e-4, fallback_windows=4, fallback_ratio=1.1)
     rng = np.random.default_rng(3)
+    m = int(ad.step_function.size1_in(1))
     for _ in range(2000):
-        ad.observe(rng.normal(scale=0.3, size=2), rng.normal(size=4))
+        ad.observe(rng.normal(scale=0.3, size=2), rng.normal(size=m))
     assert ad.n_fallbacks_ > 0
     quiet = OnlineRPEM(model)               # windows with a sample below min_nox_ppm: skipped, nothing learnt
     for _ in range(200):
-        quiet.observe(rng.normal(scale=0.3, size=2), rng.normal(size=4), informative=False)
+        quiet.observe(rng.normal(scale=0.3, size=2), rng.normal(size=m), informative=False)
     assert quiet.n_skipped_ == 19 and quiet.n_updates_ == 0
     np.testing.assert_array_equal(quiet.theta_, model.theta_)
 
