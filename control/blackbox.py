@@ -180,7 +180,8 @@ class BlackBoxModel:
             xm, sf = x[:self.nx_model], x[self.nx_model:]
             zx = ca.vertcat(z, sf)
             xn, y = self.step(xm, zx) if self.theta_step is None else self.theta_step(xm, zx, theta)[:2]
-            sn = [sf[c] + a * (z[i] - sf[c]) for c, ((i, _), a) in enumerate(zip(self.input_filters, self._filter_a))]
+            sn = [sf[c] + a * (z[i] - sf[c])
+                  for c, ((i, _), a) in enumerate(zip(self.input_filters, self._filter_a, strict=True))]
             return ca.vertcat(xn, *sn), y
         if self.theta_step is None:
             return self.step(x, z)
@@ -231,7 +232,7 @@ class BlackBoxModel:
                 xm, sf = x[:nxm], x[nxm:]
                 xme = ca.mtimes(ca.DM(Ak), xm) + ca.mtimes(ca.DM(S), bfun(ca.vertcat(z, sf)) + ed[:nxm])
                 sn = [sf[c] + (1.0 - (1.0 - a) ** k) * (z[i] - sf[c])
-                      for c, ((i, _), a) in enumerate(zip(self.input_filters, self._filter_a))]
+                      for c, ((i, _), a) in enumerate(zip(self.input_filters, self._filter_a, strict=True))]
                 xe = ca.vertcat(xme, *sn)
             else:
                 xe = ca.mtimes(ca.DM(Ak), x) + ca.mtimes(ca.DM(S), bfun(z) + ed)

@@ -64,9 +64,9 @@ CLOSED_LOOP_ITERATIONS = 0
 #: :func:`ident.for_control.fit_hw_for_control`): the stoichiometric surplus filtered with a 300 s time constant, the
 #: record of what was over- or under-dosed minutes ago, which a model without a storage state needs to foresee the
 #: slip of a heat-up (a linear filter of a measured signal, as Laguerre-type filtered regressors of black-box
-#: identification; no kinetics, no coverage, no temperature in it). 300 s: about the time a store filled at low
-#: temperature takes to be used up at ANR 0.8-1 (calibration figures of the fourth round: slip 100-500 s after
-#: an over-dose); the one value tried, not swept [chosen, issue 18 sixth round, RPEM: see RPEM_FIT]
+#: identification; no kinetics, no coverage, no temperature in it). 300 s: the one value tried, set beforehand from
+#: the time scale of the store at low temperature (minutes), not swept [chosen, issue 18 sixth round, RPEM: see
+#: RPEM_FIT]
 INPUT_FILTERS: tuple[tuple[str, float], ...] = (("surplus_ppm", 300.0),)
 #: options of :func:`ident.for_control.fit_rpem_for_control` in the loop: the multi-step (horizon) prediction-error
 #: refinement over the NMPC's 80-s horizon (Shook, Mohtadi and Shah 1991) of every candidate term set, the term set
@@ -87,8 +87,9 @@ RPEM_FIT: dict[str, Any] = {"multistep_horizon": 160, "max_nfev": 10, "input_fil
 QUICK_RPEM_FIT: dict[str, Any] = {"input_filters": INPUT_FILTERS}
 #: options of :func:`ident.for_control.fit_hw_for_control` in the loop (and quick mode): none. The filtered surplus
 #: (``{"input_filters": INPUT_FILTERS}``) is built for the Hammerstein-Wiener model too and runs in its NMPC, but its
-#: calibration was not finished (its NMPC took about 10 minutes per 600 s calibration episode on the shared cores,
-#: five times the unfiltered model's; issue 18 sixth round), so the kept model stays the fourth round's
+#: calibration was stopped unfinished (issue 18 sixth round: no 600 s episode had ended after 8 minutes on the
+#: shared cores; its NMPC has 20 linear states against 16 and a median solve of about 150 ms), so the kept model
+#: is the fourth round's, without it
 HW_FIT: dict[str, Any] = {}
 #: the closed-loop records' multiplicative dither on the NMPC's dose (random steps in [-d, d] held 2-20 s) [-]
 CLOSED_LOOP_DITHER = 0.2

@@ -9,6 +9,9 @@ NMPCs (:mod:`control.blackbox`) run on.
 * :func:`fit_hw_for_control`: a two-output Hammerstein-Wiener model (static input blocks, linear dynamics, static
   output blocks) on the same features and outputs, fitted on all records end to end (:func:`concat_records`).
 * :func:`hw_linear_export`: its CasADi step and linear part for exact multi-step NMPC stages.
+* :func:`filtered_inputs` (``input_filters`` of both fits): first-order low-pass filtered copies of features as
+  further model inputs, e.g. the surplus over 300 s: a memory of past over- and under-dosing for models without a
+  storage state (a linear filter of a measured signal; the NMPC propagates it, :class:`control.blackbox.BlackBoxModel`).
 
 Black-box boundary (issue 18): no Arrhenius kinetics and no storage balance inside either model; the features are
 static transforms of measured signals (exp(-a/T) as in Paper III).
@@ -261,10 +264,11 @@ def fit_rpem_for_control(records: Sequence[Any], storage_terms: bool = True, val
     multi-step prediction FIT over :data:`SELECTION_HORIZON` samples on the ``validation`` records (default: the
     last record; Shook, Mohtadi and Shah 1991: the predictor the NMPC uses). Parameters: ridge equation-error
     estimate, refined with ``multistep_horizon`` > 0 by the multi-step prediction error
-    (:func:`ident.rpem.multistep.fit_multistep`). ``input_filters``: ``[(feature, tau_s), ...]``, first-order low-pass filtered copies of features added as further
-    inputs (:func:`filtered_inputs`; a linear dynamic transform of a measured signal, as the Laguerre-type filtered
-    regressors of black-box identification: a surplus dosed minutes ago is the record of what the catalyst may
-    hold, which the one-state chains cannot keep), with storage candidates of their own. Returns the fitted
+    (:func:`ident.rpem.multistep.fit_multistep`). ``input_filters``: ``[(feature, tau_s), ...]``, first-order
+    low-pass filtered copies of features added as further inputs (:func:`filtered_inputs`; a linear dynamic
+    transform of a measured signal, as the Laguerre-type filtered regressors of black-box identification: a surplus
+    dosed minutes ago is the record of what the catalyst may hold, which the one-state chains cannot keep), with
+    storage candidates of their own. Returns the fitted
     :class:`~ident.rpem.RecursivePEM` (inputs: scaled features, then the filtered ones) and the JSON-able
     description the NMPC needs."""
     from ident.rpem.multistep import fit_multistep, rpem_from_theta

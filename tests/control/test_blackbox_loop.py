@@ -78,7 +78,7 @@ def test_black_box_nmpc_closes_the_loop(models: dict, name: str, capfd) -> None:
 
 
 def test_ablation_variants_switch_one_ingredient_off(models: dict, monkeypatch: pytest.MonkeyPatch) -> None:
-    import control.loop as loop
+    from control import loop
 
     names = ablation_controllers()
     # the filtered surplus input (loop.INPUT_FILTERS) is an identification ingredient of both models when their fit
