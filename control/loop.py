@@ -89,7 +89,7 @@ QUICK_RPEM_FIT: dict[str, Any] = {"input_filters": INPUT_FILTERS}
 #: (``{"input_filters": INPUT_FILTERS}``) is built for the Hammerstein-Wiener model too and runs in its NMPC, but its
 #: calibration was stopped unfinished (issue 18 sixth round: no 600 s episode had ended after 8 minutes on the
 #: shared cores; its NMPC has 20 linear states against 16 and a median solve of about 150 ms), so the kept model
-#: is the fourth round's, without it
+#: has no filtered input
 HW_FIT: dict[str, Any] = {}
 #: the closed-loop records' multiplicative dither on the NMPC's dose (random steps in [-d, d] held 2-20 s) [-]
 CLOSED_LOOP_DITHER = 0.2
