@@ -180,13 +180,16 @@ class BlackBoxModel:
             xm, sf = x[:self.nx_model], x[self.nx_model:]
             zx = ca.vertcat(z, sf)
             xn, y = self.step(xm, zx) if self.theta_step is None else self.theta_step(xm, zx, theta)[:2]
-            sn = [sf[c] + a * (z[i] - sf[c])
-                  for c, ((i, _), a) in enumerate(zip(self.input_filters, self._filter_a, strict=True))]
-            return ca.vertcat(xn, *sn), y
+            return ca.vertcat(xn, self._filter_states(sf, z, 1)), y
         if self.theta_step is None:
             return self.step(x, z)
         out = self.theta_step(x, z, theta)
         return out[0], out[1]
+
+    def _filter_states(self, sf: Any, z: Any, k: int) -> Any:
+        """The filter states after ``k`` steps with the features ``z`` held: ``s + (1 - (1 - a)^k) (z_i - s)``."""
+        return ca.vertcat(*[sf[c] + (1.0 - (1.0 - a) ** k) * (z[i] - sf[c])
+                            for c, ((i, _), a) in enumerate(zip(self.input_filters, self._filter_a, strict=True))])
 
     def _dist_matrix(self) -> ca.DM:
         E = np.zeros((self.nx, 2))
@@ -231,9 +234,7 @@ class BlackBoxModel:
             if self.nf:   # the filtered inputs held at the stage start; their states exact at the end
                 xm, sf = x[:nxm], x[nxm:]
                 xme = ca.mtimes(ca.DM(Ak), xm) + ca.mtimes(ca.DM(S), bfun(ca.vertcat(z, sf)) + ed[:nxm])
-                sn = [sf[c] + (1.0 - (1.0 - a) ** k) * (z[i] - sf[c])
-                      for c, ((i, _), a) in enumerate(zip(self.input_filters, self._filter_a, strict=True))]
-                xe = ca.vertcat(xme, *sn)
+                xe = ca.vertcat(xme, self._filter_states(sf, z, k))
             else:
                 xe = ca.mtimes(ca.DM(Ak), x) + ca.mtimes(ca.DM(S), bfun(z) + ed)
         else:
