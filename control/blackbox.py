@@ -639,6 +639,9 @@ NMPC_SETTINGS: dict[str, dict[str, Any]] = {
     #   [["surplus_ppm", 300.0]]}'``), same twelve cycles and rule: fourth-round design (band_hi 1.5 + hot band):
     #   1.270 [1.677 / 0.455] at 2.46;  band_hi 2.5 + hot band: 1.005 [1.341 / 0.334] at 11.0 (ramped);  band_hi 6, no
     #   hot band (the third-round design): 0.676 [0.894 / 0.240] at 4.61 <- chosen.
+    #   seventh round (2026-11-28, same command, model re-identified): the chosen design 0.692 at 4.70;  anr_band_lo
+    #   0.9: 0.657 at 8.93;  anr_band_lo_hot 1.0 (above 548 K): 0.680 at 14.1;  0.9 + hot band 1.0: 0.658 at 14.5;
+    #   nh3_dist_tau_s 600: 0.698 at 10.3 (filter time constants: control.loop.INPUT_FILTERS) <- design kept.
     "rpem": {"disturbance": "state", "q_state": 1e-4, "q_dist": (1e-5, 1e-5), "r_sensor": (25.0, 4.0),
              "terminal_s": 120.0, "anr_band_hi": 6.0, "anr_band_lo": 0.8, "nh3_dist_tau_s": 300.0,
              "anr_band_lo_hot": None, "band_hot_k": 548.15},
