@@ -95,7 +95,10 @@ QUICK_RPEM_FIT: dict[str, Any] = {"input_filters": INPUT_FILTERS}
 #: (``{"input_filters": INPUT_FILTERS}``) is built for the Hammerstein-Wiener model too and runs in its NMPC, but its
 #: calibration was stopped unfinished (issue 18 sixth round: no 600 s episode had ended after 8 minutes on the
 #: shared cores; its NMPC has 20 linear states against 16 and a median solve of about 150 ms), so the kept model
-#: has no filtered input
+#: has no filtered input. Seventh round (2026-11-28): measured on the twelve calibration cycles with the NMPC's
+#: fourth-round design (``python -m experiments.calibrate_black_box --models hammerstein_wiener ... --hw-fit
+#: '{"input_filters": [["surplus_ppm", 300.0]]}'``): 1.360 g/kWh at 2.15 ppm, against 0.651 at 7.71 without the
+#: filter (the seventh-round design, control.blackbox.NMPC_SETTINGS): far more cautious, not kept
 HW_FIT: dict[str, Any] = {}
 #: the closed-loop records' multiplicative dither on the NMPC's dose (random steps in [-d, d] held 2-20 s) [-]
 CLOSED_LOOP_DITHER = 0.2
