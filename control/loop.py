@@ -470,10 +470,10 @@ def identify_while_running(episode: Callable[..., dict[str, Any]], out: Path, qu
     (:func:`greybox_job`) and runs the tasks of ``first`` whose controller is in :data:`MODEL_FREE` or ``rl``
     (slowest first); the NMPC tasks join the pool once the models exist (``models``: the grey-box file and the
     black-box record, set on each task). ``episode(**task)`` is a module-level function (it is sent to the workers).
-    Results come back in the order of ``first``. A failure (identification, a broken worker, Ctrl-C) cancels the
-    queued episodes and re-raises at once. While identifying, this process and the workers share the cores: the
-    timings of those episodes are measured under that load (their KPIs are not)."""
-    from concurrent.futures import Future, ProcessPoolExecutor
+    Results come back in the order of ``first``; progress is printed as the episodes end. A failure (identification,
+    a broken worker, Ctrl-C) cancels the queued episodes and re-raises at once. While identifying, this process and
+    the workers share the cores: the timings of those episodes are measured under that load (their KPIs are not)."""
+    from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 
     free = [t for t in first if t["name"] in MODEL_FREE or t["name"] in rl]
     rest = [t for t in first if not (t["name"] in MODEL_FREE or t["name"] in rl)]
@@ -492,10 +492,13 @@ def identify_while_running(episode: Callable[..., dict[str, Any]], out: Path, qu
             futures[id(t)] = pool.submit(_call_episode, episode, dict(t))
         print(f"  identified; {len(free)} model-free episodes started during it, {len(rest)} NMPC episodes on the "
               "identified models queued", flush=True)
-        results = []
-        for i, t in enumerate(first):
-            results.append(futures[id(t)].result())
-            print(f"  episode {i + 1}/{len(first)}: {t['name']} done", flush=True)
+        task_of = {futures[id(t)]: t for t in first}
+        for i, f in enumerate(as_completed(task_of)):   # progress as the episodes end; a failure re-raises at once
+            f.result()
+            t = task_of[f]
+            print(f"  episode {i + 1}/{len(first)}: {t['name']} (trace {t['trace_index']}, seed {t['seed']}) done",
+                  flush=True)
+        results = [futures[id(t)].result() for t in first]
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
         raise

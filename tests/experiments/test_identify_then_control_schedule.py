@@ -79,3 +79,20 @@ def test_bad_worker_counts_are_refused_before_identifying(tmp_path, monkeypatch,
     monkeypatch.setattr(itc, "identify_for_control", lambda *a, **k: pytest.fail("identified anyway"))
     with pytest.raises(ValueError, match="workers"):
         itc.run(quick=True, out=tmp_path, include_rl=False, sweep_kwargs={"backend": "local", "workers": workers})
+
+
+def _greybox_waits_episode(**task: Any) -> dict[str, Any]:
+    if task["name"] == "mpc_greybox":
+        time.sleep(1.5)
+    return {"name": task["name"], "cycle": f"c{task['trace_index']}"}
+
+
+def test_progress_is_printed_as_episodes_end_and_results_keep_the_task_order(tmp_path, monkeypatch, capsys) -> None:
+    monkeypatch.setattr(loop, "identify_for_control", lambda out, quick, ablation: {"models": {}})
+    monkeypatch.setattr(control.factory, "greybox_record", lambda: (_FakeGreyBox(), {}))
+    first = [{"name": n, "trace_index": 0, "seed": 0, "models": None, "quick": True, "record": False}
+             for n in ("mpc_greybox", "mpc_rpem", "mpc_hammerstein_wiener")]
+    _, _, results = loop.identify_while_running(_greybox_waits_episode, tmp_path, True, False, first, [], workers=2)
+    assert [r["name"] for r in results] == ["mpc_greybox", "mpc_rpem", "mpc_hammerstein_wiener"]
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if "episode " in ln]
+    assert len(lines) == 3 and "3/3: mpc_greybox" in lines[-1]      # the slow first task is reported last
