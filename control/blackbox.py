@@ -663,7 +663,9 @@ NMPC_SETTINGS: dict[str, dict[str, Any]] = {
     #   fourth-round design 0.650 at 10.36 (cycle 21; over);  hot band 1.1 above 598 K: 0.626 at 11.45; above 573 K:
     #   0.626 at 13.05;  on that model (``--identified``): anr_band_lo 0.8: 0.652 at 9.53;  nh3_dist_tau_s 300: 0.648
     #   at 10.32;  no hot band: 0.651 [0.831 / 0.291] at 7.71 <- chosen (the only one within 8 ppm);  the model with
-    #   the filtered surplus (control.loop.HW_FIT): 1.360 at 2.15 (not kept).
+    #   the filtered surplus (control.loop.HW_FIT): 1.360 at 2.15 (not kept);  the model refined by the multi-step
+    #   error (--hw-fit '{"multistep_horizon": 160}'), this design: 1.187 at 23.1; with piecewise-linear output
+    #   blocks: 1.466 at 256 (not kept).
     "hammerstein_wiener": {"disturbance": "output", "q_state": 1e-3, "q_dist": (0.4, 0.1), "r_sensor": (25.0, 4.0),
                            "terminal_s": 120.0, "anr_band_hi": 6.0, "anr_band_lo": 0.9, "anr_band_lo_hot": None,
                            "band_hot_k": 548.15, "nh3_dist_tau_s": 600.0},
