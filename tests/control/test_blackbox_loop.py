@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from control.blackbox import INGREDIENTS, BlackBoxMPC, black_box_nmpc
+from control.blackbox import INGREDIENTS, NMPC_SETTINGS, BlackBoxMPC, black_box_nmpc
 from control.evaluation import cycle_segment, evaluate
 from control.loop import (
     SLIP_LIMIT_PPM,
@@ -195,6 +195,9 @@ def test_black_box_nmpc_takes_the_weights_and_the_planned_slip_limit(models: dic
     model, info = load_for_control("rpem", models)
     p = black_box_nmpc(model, info, quick=True, nox_weight=40.0, plan_slip_ppm=5.0)
     assert p.weights.nox == 40.0 and p.weights.nh3 == 60.0 and p.slip_limit_ppm == 5.0
+    default = black_box_nmpc(model, info, quick=True)     # the calibrated settings of NMPC_SETTINGS["rpem"]
+    assert default.weights.nox == NMPC_SETTINGS["rpem"]["nox_weight"]
+    assert default.slip_limit_ppm == NMPC_SETTINGS["rpem"]["plan_slip_ppm"]
 
 
 # ----------------------------------------------------------------------------- online adaptation of the RPEM
