@@ -673,6 +673,8 @@ NMPC_SETTINGS: dict[str, dict[str, Any]] = {
     #   the filtered surplus (control.loop.HW_FIT): 1.360 at 2.15 (not kept);  the model refined by the multi-step
     #   error (--hw-fit '{"multistep_horizon": 160}'), this design: 1.187 at 23.1; with piecewise-linear output
     #   blocks: 1.466 at 256 (not kept).
+    #   NMPC weights (--configs): nox_weight 25: 0.599 at 16.5; plan_slip_ppm 20: 0.654 at 7.88; both: 0.598 at
+    #   17.1 (over, or no better) <- default weights kept.
     "hammerstein_wiener": {"disturbance": "output", "q_state": 1e-3, "q_dist": (0.4, 0.1), "r_sensor": (25.0, 4.0),
                            "terminal_s": 120.0, "anr_band_hi": 6.0, "anr_band_lo": 0.9, "anr_band_lo_hot": None,
                            "band_hot_k": 548.15, "nh3_dist_tau_s": 600.0},
