@@ -19,8 +19,9 @@ the seeded random cycles ``--seeds`` (``--duration`` seconds each, sensor-noise 
 The rule of :mod:`experiments.calibrate_controllers` picks per model: the lowest mean tailpipe NOx among the
 configurations whose mean NH3 slip stays below ``--slip-target`` on every calibration cycle. ``--hw-fit`` passes
 options to :func:`ident.for_control.fit_hw_for_control` (calibrating the model structure), ``--identified`` reuses
-the models of an earlier ``--json`` instead of identifying again. The chosen values are
-the defaults of :data:`control.blackbox.NMPC_SETTINGS`.
+the models of an earlier ``--json`` instead of identifying again. Each table row lists per cycle: the cycle, NOx
+[g/kWh], mean NH3 slip [ppm], failed solves, AdBlue [g], peak NH3 slip [ppm]. The chosen values are the defaults
+of :data:`control.blackbox.NMPC_SETTINGS`.
 """
 from __future__ import annotations
 
@@ -140,7 +141,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             nox, worst = float(np.mean([r["nox"] for r in rs])), max(r["slip"] for r in rs)
             table.append({"model": m, "config": c, "mean_nox_g_per_kwh": nox, "worst_mean_slip_ppm": worst,
                           "lut_mean_nox_g_per_kwh": float(np.mean([lut[r["cycle"]] for r in rs])),
-                          "per_seed": [(r["cycle"], r["nox"], r["slip"], r["failures"], r["adblue_g"]) for r in rs]})
+                          "per_seed": [(r["cycle"], r["nox"], r["slip"], r["failures"], r["adblue_g"], r["peak"])
+                                       for r in rs]})
             print(f"{m} {json.dumps(c)}: NOx {nox:.3f} g/kWh (LUT {table[-1]['lut_mean_nox_g_per_kwh']:.3f}), "
                   f"worst mean slip {worst:.2f} ppm, per cycle {table[-1]['per_seed']}", flush=True)
             if worst <= args.slip_target and (best is None or nox < best[0]):

@@ -54,7 +54,7 @@ def test_refuses_bad_hw_fit_and_reuses_an_earlier_identification(capsys: pytest.
 
     def sweep(fn: object, tasks: list, **kw: object) -> list:
         return [{"model": t["model"], "config": t["config"], "seed": t["seed"], "nox": 1.0, "slip": 0.0,
-                 "adblue_g": 1.0, "failures": 0.0} for t in tasks]
+                 "adblue_g": 1.0, "failures": 0.0, "peak": 0.0} for t in tasks]
 
     monkeypatch.chdir(tmp_path)   # the run folder goes under ./runs
     monkeypatch.setattr(calibrate_black_box, "identify_for_control", no_identification)
@@ -83,7 +83,7 @@ def test_ramped_mode_cycles_join_the_rule(capsys: pytest.CaptureFixture[str], tm
             bold = t["config"].get("anr_band_lo") == 1.0
             slip = 20.0 if bold and t["kind"] == "ramped_modes" else 1.0
             rows.append({"model": t["model"], "config": t["config"], "seed": t["seed"], "nox": 0.5 if bold else 1.0,
-                         "slip": slip, "adblue_g": 1.0, "failures": 0.0})
+                         "slip": slip, "adblue_g": 1.0, "failures": 0.0, "peak": 0.0})
         return rows
 
     monkeypatch.chdir(tmp_path)
@@ -111,7 +111,7 @@ def test_ramped_identification_cycles_reach_the_identification_and_differ_from_c
 
     def sweep(fn: object, tasks: list, **kw: object) -> list:
         return [{"model": t["model"], "config": t["config"], "seed": t["seed"], "nox": 1.0, "slip": 0.0,
-                 "adblue_g": 1.0, "failures": 0.0} for t in tasks]
+                 "adblue_g": 1.0, "failures": 0.0, "peak": 0.0} for t in tasks]
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(calibrate_black_box, "identify_for_control", identify)
