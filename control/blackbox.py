@@ -690,8 +690,10 @@ ANR_BAND = (0.0, 1.3)
 BAND_RELEASE_FILTER_S = 5.0
 #: the slip cap's ANR (:meth:`BlackBoxMPC.predict`): zero, as the slip guard doses nothing on a failed solve while
 #: the catalyst slips [added after the held-out run showed the Hammerstein-Wiener NMPC slipping 348 ppm on the WHSC;
-#: an ANR of 0.8 left 16.6 ppm there, so this value was also seen on held-out data; not calibrated (no calibration
-#: cycle makes the black-box NMPCs slip)]
+#: an ANR of 0.8 left 16.6 ppm there, so this value was also seen on held-out data; not calibrated: the transient
+#: calibration cycles barely make the black-box NMPCs slip; the peak-slip column of ``calibrate_black_box``
+#: (2026-11-29) shows that the ramped-mode ones do (Hammerstein-Wiener NMPC: peaks of 60-227 ppm on modes 5-8), so
+#: the cap can be calibrated there; not done yet]
 SLIP_CAP_ANR = 0.0
 #: the NLP solvers of the black-box NMPC (setting ``solver``): ``"sqp"``, the grey-box NMPC's SQP method with its
 #: IPOPT rescue (:data:`control.factory.IDENT_SOLVER`, the default), or ``"ipopt"``, an interior-point method with

@@ -8,13 +8,21 @@ the same folder, then ``os.replace``): a full disk or an interrupt leaves the pr
 """
 from __future__ import annotations
 
+import platform
+import subprocess
 import time
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 from scr_env.fileio import atomic_path, atomic_write_text, check_output_file, check_output_folder, write_json
 
-__all__ = ["run_folder", "save_results", "write_figure", "write_json", "write_text"]
+__all__ = ["environment", "run_folder", "save_results", "write_figure", "write_json", "write_text"]
+
+#: the distributions whose versions an experiment records (:func:`environment`): the NMPC figures depend on
+#: CasADi's solvers at the level of a ppm of slip (the same Hammerstein-Wiener NMPC on calibration cycle 21:
+#: 8.84 ppm with casadi 3.8.2, 9.66 ppm with 3.7.2; README, eighth round)
+RECORDED_PACKAGES = ("casadi", "numpy", "scipy", "gymnasium", "numba", "torch", "stable-baselines3")
 
 
 def run_folder(name: str, root: str | Path = "runs", json_path: str | Path | None = None,
@@ -66,3 +74,33 @@ def save_results(out: Path, filename: str, doc: Any, json_path: str | Path | Non
     if json_path is not None:
         write_json(json_path, doc)
     return path
+
+
+def environment() -> dict[str, Any]:
+    """What a figure was computed with, for the experiments' JSON (key ``environment``): the Python version, the
+    versions of :data:`RECORDED_PACKAGES` (None if not installed) and the git commit of the working tree (None
+    outside a git checkout; ``"<hash>+dirty"`` with uncommitted changes). The figures are deterministic for given
+    seeds only with the same versions."""
+    packages: dict[str, str | None] = {}
+    for name in RECORDED_PACKAGES:
+        try:
+            packages[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            packages[name] = None
+    return {"python": platform.python_version(), "packages": packages, "git_commit": _git_commit()}
+
+
+def _git_commit() -> str | None:
+    """The commit of the checkout holding this file, None if there is none (an installed package, no git)."""
+    here = Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], check=False, cwd=here, capture_output=True, text=True,
+                              timeout=10)
+        if head.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], check=False,
+                               cwd=here, capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    commit = head.stdout.strip()
+    return commit + ("+dirty" if dirty.returncode == 0 and dirty.stdout.strip() else "")

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from control.loop import BLACK_BOX, identify_for_control
-from experiments._runs import run_folder, write_json
+from experiments._runs import environment, run_folder, write_json
 from experiments.sweep import add_arguments, from_args, run_sweep
 
 
@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     doc = {"seeds": args.seeds, "duration_s": args.duration, "ramped_seeds": args.ramped_seeds,
            "ramped_duration_s": args.ramped_duration, "hw_fit": hw_fit, "rpem_fit": rpem_fit,
            "slip_target_ppm": args.slip_target,
-           "table": table, "chosen": chosen, "identification": black_box}
+           "table": table, "chosen": chosen, "identification": black_box, "environment": environment()}
     print("chosen:", json.dumps(chosen))
     write_json(out / "calibrate_black_box.json", doc)
     if args.json is not None:

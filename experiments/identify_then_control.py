@@ -53,7 +53,7 @@ from control.loop import (
 )
 from control.loop_report import loop_report
 from control.plots import closed_loop_figure
-from experiments._runs import run_folder, write_json, write_text
+from experiments._runs import environment, run_folder, write_json, write_text
 from experiments.sweep import add_arguments, from_args, run_sweep
 
 
@@ -130,7 +130,7 @@ def run(quick: bool = False, out: Path | None = None, sweep_kwargs: dict[str, An
                            "oracle": oracle_description(quick), "identification": ident, "kpis": kpis,
                            "kpis_per_seed": per_seed, "gap_closed": gaps,
                            "gap_closed_excluded": excluded, "gap_to_limit": to_limit, "errors": errors,
-                           "skipped": rl_note or None, "run_folder": str(out),
+                           "skipped": rl_note or None, "run_folder": str(out), "environment": environment(),
                            "wall_time_s": time.perf_counter() - start}
     figures = []
     for cycle in sorted({r["cycle"] for r in results if "row" in r}):

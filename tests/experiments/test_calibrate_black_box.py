@@ -2,6 +2,7 @@
 any identification runs."""
 from __future__ import annotations
 
+import casadi
 import pytest
 
 from experiments import calibrate_black_box
@@ -63,6 +64,7 @@ def test_refuses_bad_hw_fit_and_reuses_an_earlier_identification(capsys: pytest.
                                     "--json", str(tmp_path / "out.json")])
     assert doc["identification"]["models"]["hammerstein_wiener"]["path"] == "x"
     assert doc["chosen"] == {"hammerstein_wiener": {}}
+    assert doc["environment"]["packages"]["casadi"] == casadi.__version__   # what the figures were computed with
 
 
 def test_ramped_mode_cycles_join_the_rule(capsys: pytest.CaptureFixture[str], tmp_path,

@@ -73,3 +73,23 @@ def test_write_figure_writes_the_png_atomically_and_closes_the_figure(tmp_path) 
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not plt.fignum_exists(fig.number)
     assert [p.name for p in tmp_path.iterdir()] == ["f.png"]  # no temporary file left behind
+
+
+def test_environment_records_the_versions_and_the_commit(monkeypatch) -> None:
+    import casadi
+    import numpy as np
+
+    env = _runs.environment()
+    assert env["packages"]["casadi"] == casadi.__version__ and env["packages"]["numpy"] == np.__version__
+    assert set(env["packages"]) == set(_runs.RECORDED_PACKAGES) and env["python"].count(".") == 2
+    json.dumps(env)   # JSON-ready
+    commit = env["git_commit"]
+    assert commit is None or len(commit.removesuffix("+dirty")) == 40
+
+
+def test_environment_without_git_records_no_commit(monkeypatch) -> None:
+    def no_git(*args, **kwargs):
+        raise FileNotFoundError("git")
+
+    monkeypatch.setattr(_runs.subprocess, "run", no_git)
+    assert _runs.environment()["git_commit"] is None
