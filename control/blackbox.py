@@ -347,6 +347,15 @@ class BlackBoxEstimator:
         return self.model.prepare(observation, applied_dose_g_s)
 
 
+#: the slip cap's ANR (:meth:`BlackBoxMPC.predict`): zero, as the slip guard doses nothing on a failed solve while
+#: the catalyst slips [added after the held-out run showed the Hammerstein-Wiener NMPC slipping 348 ppm on the WHSC;
+#: an ANR of 0.8 left 16.6 ppm there, so this value was also seen on held-out data; not calibrated: the transient
+#: calibration cycles barely make the black-box NMPCs slip; the peak-slip column of ``calibrate_black_box``
+#: (2026-11-29) shows that the ramped-mode ones do (Hammerstein-Wiener NMPC: peaks of 60-227 ppm on modes 5-8), so
+#: the cap can be calibrated there; not done yet]
+SLIP_CAP_ANR = 0.0
+
+
 def _optional_nonnegative(name: str, value: float | None) -> float | None:
     """An optional band setting (an ANR, a release threshold in ppm): a number >= 0 or None (ValueError naming
     ``name``)."""
@@ -385,6 +394,8 @@ class BlackBoxMPC(NonlinearMPC):
         ``band_cold_k`` [K] (None: the band's ``hi`` everywhere). The mirror image of the hot band: cool, the
         catalyst stores what is over-dosed and a later heat-up releases it as slip, which a model without a storage
         state cannot foresee; hot, an over-dose is seen at once and the model's slip prediction limits it.
+    slip_cap_anr : the slip cap's ANR (:meth:`predict`; default :data:`SLIP_CAP_ANR`); None: no cap (the slip
+        guard of a failed solve stays).
     """
 
     def __init__(self, model: BlackBoxModel, stages: Sequence[int] = (4,) * 20,
@@ -392,8 +403,9 @@ class BlackBoxMPC(NonlinearMPC):
                  band_floor_g_s: float = 0.05, terminal_s: float = 0.0, terminal_slip_ppm: float | None = None,
                  band_release_ppm: float | None = None, band_release_s: float = 60.0,
                  band_lo_hot: float | None = None, band_hot_k: float = 573.15, band_hi_cold: float | None = None,
-                 band_cold_k: float = 523.15, **kwargs: Any) -> None:
+                 band_cold_k: float = 523.15, slip_cap_anr: float | None = SLIP_CAP_ANR, **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)
+        self.slip_cap_anr = _optional_nonnegative("slip_cap_anr", slip_cap_anr)
         self.band_hi_cold = _optional_nonnegative("band_hi_cold", band_hi_cold)
         self.band_cold_k = _band_temperature("band_cold_k", band_cold_k)
         self.band_lo_hot = _optional_nonnegative("band_lo_hot", band_lo_hot)
@@ -412,15 +424,16 @@ class BlackBoxMPC(NonlinearMPC):
     def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
         """:meth:`NonlinearMPC.predict`, then the slip cap: while the tailpipe NH3 sensor (``slip_guard``) reads
-        above its threshold, the dose is at most :data:`SLIP_CAP_ANR` times the feedforward on the measured NOx
-        flow (solved plans included: a black-box model can extrapolate a store that is not there); the capped dose
-        is what the estimator sees as applied."""
+        above its threshold, the dose is at most ``slip_cap_anr`` (:data:`SLIP_CAP_ANR`) times the feedforward on
+        the measured NOx flow (solved plans included: a black-box model can extrapolate a store that is not there);
+        the capped dose is what the estimator sees as applied."""
         action, state = super().predict(observation, state, episode_start, deterministic)
-        if self.slip_guard is None:
+        if self.slip_guard is None or self.slip_cap_anr is None:
             return action, state
         obs = np.asarray(observation, float).reshape(-1, np.asarray(observation).shape[-1])[0]
         if float(obs[self.slip_guard[0]]) > self.slip_guard[1]:
-            cap = SLIP_CAP_ANR * max(float(obs[OBS_NOX_IN]), 0.0) * 1e-6 * float(obs[OBS_FLOW]) / NH3_MOL_PER_G_ADBLUE
+            nox_mol_s = max(float(obs[OBS_NOX_IN]), 0.0) * 1e-6 * float(obs[OBS_FLOW])
+            cap = self.slip_cap_anr * nox_mol_s / NH3_MOL_PER_G_ADBLUE
             if self._u_prev > cap:
                 self._u_prev = cap
                 self.slip_capped_steps_ += 1
@@ -688,13 +701,6 @@ ANR_BAND = (0.0, 1.3)
 #: above 2 ppm at 2 % of the steps, which released the band almost all the time (calibration cycles); 5 s leaves
 #: about 0.2 ppm of the noise [chosen]
 BAND_RELEASE_FILTER_S = 5.0
-#: the slip cap's ANR (:meth:`BlackBoxMPC.predict`): zero, as the slip guard doses nothing on a failed solve while
-#: the catalyst slips [added after the held-out run showed the Hammerstein-Wiener NMPC slipping 348 ppm on the WHSC;
-#: an ANR of 0.8 left 16.6 ppm there, so this value was also seen on held-out data; not calibrated: the transient
-#: calibration cycles barely make the black-box NMPCs slip; the peak-slip column of ``calibrate_black_box``
-#: (2026-11-29) shows that the ramped-mode ones do (Hammerstein-Wiener NMPC: peaks of 60-227 ppm on modes 5-8), so
-#: the cap can be calibrated there; not done yet]
-SLIP_CAP_ANR = 0.0
 #: the NLP solvers of the black-box NMPC (setting ``solver``): ``"sqp"``, the grey-box NMPC's SQP method with its
 #: IPOPT rescue (:data:`control.factory.IDENT_SOLVER`, the default), or ``"ipopt"``, an interior-point method with
 #: a line search for models whose features make the SQP steps stall (the spill-over features of
@@ -780,6 +786,7 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
                       band_release_s=float(cfg.get("band_release_s", 60.0)),
                       band_lo_hot=cfg.get("anr_band_lo_hot"), band_hot_k=float(cfg.get("band_hot_k", 573.15)),
                       band_hi_cold=cfg.get("anr_band_hi_cold"), band_cold_k=float(cfg.get("band_cold_k", 523.15)),
-                      slip_limit_ppm=float(cfg.get("plan_slip_ppm", SLIP_GUARD_PPM)), **kw)
+                      slip_limit_ppm=float(cfg.get("plan_slip_ppm", SLIP_GUARD_PPM)),
+                      slip_cap_anr=cfg.get("slip_cap_anr", SLIP_CAP_ANR), **kw)
     mpc.env_kwargs = {"nh3_sensor": True} if (nh3_sensor or slip_guard) else {}
     return mpc

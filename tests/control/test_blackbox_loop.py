@@ -178,6 +178,35 @@ def test_slip_cap_doses_nothing_while_the_nh3_sensor_reads_above_the_guard(model
     assert "slip_capped_steps" in policy.stats()
 
 
+def test_slip_cap_anr_is_a_setting_checked_and_none_switches_the_cap_off(models: dict) -> None:
+    from control.blackbox import OBS_FLOW, OBS_NOX_IN, SLIP_CAP_ANR
+    from control.protocol import action_to_rate
+    from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    model, info = load_for_control("rpem", models)
+    assert black_box_nmpc(model, info, quick=True).slip_cap_anr == SLIP_CAP_ANR
+    with pytest.raises(ValueError, match="slip_cap_anr"):
+        black_box_nmpc(model, info, quick=True, slip_cap_anr=-1.0)
+    env = UreaSCREnv(cycle=cycle_segment("whtc", 40.0), nh3_sensor=True)
+    rates = {}
+    for cap in (0.5, None):
+        policy = black_box_nmpc(model, info, quick=True, slip_cap_anr=cap)
+        obs, _ = env.reset(seed=0)
+        policy.attach(env)
+        for _ in range(60):                     # to where the engine emits NOx
+            obs, *_ = env.step(policy.predict(obs)[0])
+        obs = np.asarray(obs, float).copy()
+        obs[5] = 50.0                           # the tailpipe NH3 sensor reads 50 ppm
+        rates[cap] = action_to_rate(policy.predict(obs)[0], env.max_rate_g_s)
+        nox_mol_s = max(obs[OBS_NOX_IN], 0.0) * 1e-6 * obs[OBS_FLOW]
+        if cap is not None:                     # at most ANR 0.5 on the measured NOx flow
+            assert rates[cap] <= 0.5 * nox_mol_s / NH3_MOL_PER_G_ADBLUE + 1e-12
+            assert policy.stats()["slip_capped_steps"] <= 1.0
+        else:
+            assert policy.stats()["slip_capped_steps"] == 0.0
+
+
 def test_closed_loop_identification_pools_dithered_nmpc_records(records: list) -> None:
     from control.loop import closed_loop_identification
 
