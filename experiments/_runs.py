@@ -40,13 +40,15 @@ def run_folder(name: str, root: str | Path = "runs", json_path: str | Path | Non
         return check_output_folder(folder, "output folder")
     base = Path(root) / name / time.strftime("%Y%m%d-%H%M%S")
     path, i = base, 1
-    while path.exists():
-        path = base.with_name(f"{base.name}-{i}")
-        i += 1
-    try:
-        path.mkdir(parents=True)
-    except OSError as exc:
-        raise type(exc)(exc.errno, f"cannot create the run folder {path}: {exc.strerror}") from None
+    while True:   # mkdir without exist_ok claims the name: two runs started in the same second get two folders
+        try:
+            path.mkdir(parents=True)
+            break
+        except FileExistsError:
+            path = base.with_name(f"{base.name}-{i}")
+            i += 1
+        except OSError as exc:
+            raise type(exc)(exc.errno, f"cannot create the run folder {path}: {exc.strerror}") from None
     return check_output_folder(path, "run folder")
 
 

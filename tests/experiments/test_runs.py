@@ -93,3 +93,12 @@ def test_environment_without_git_records_no_commit(monkeypatch) -> None:
 
     monkeypatch.setattr(_runs.subprocess, "run", no_git)
     assert _runs.environment()["git_commit"] is None
+
+
+def test_two_runs_started_in_the_same_second_get_two_folders(tmp_path, monkeypatch) -> None:
+    """The name is claimed by mkdir, not checked then created: a second run that saw the name free (a race,
+    simulated by an ``exists`` that always says no) takes the next suffix instead of failing."""
+    monkeypatch.setattr(_runs.time, "strftime", lambda fmt: "20261129-105041")
+    monkeypatch.setattr(_runs.Path, "exists", lambda self: False)
+    paths = [_runs.run_folder("x", root=tmp_path) for _ in range(3)]
+    assert [p.name for p in paths] == ["20261129-105041", "20261129-105041-1", "20261129-105041-2"]
