@@ -33,6 +33,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from control.baselines import feedforward_dose_g_s
 from control.mpc import N_DISTURBANCE, MPCWeights, NonlinearMPC, solver_defaults
 from control.protocol import rate_to_action
 from ident.control_relevant import (
@@ -432,8 +433,7 @@ class BlackBoxMPC(NonlinearMPC):
             return action, state
         obs = np.asarray(observation, float).reshape(-1, np.asarray(observation).shape[-1])[0]
         if float(obs[self.slip_guard[0]]) > self.slip_guard[1]:
-            nox_mol_s = max(float(obs[OBS_NOX_IN]), 0.0) * 1e-6 * float(obs[OBS_FLOW])
-            cap = self.slip_cap_anr * nox_mol_s / NH3_MOL_PER_G_ADBLUE
+            cap = float(feedforward_dose_g_s(float(obs[OBS_NOX_IN]), float(obs[OBS_FLOW]), self.slip_cap_anr))
             if self._u_prev > cap:
                 self._u_prev = cap
                 self.slip_capped_steps_ += 1

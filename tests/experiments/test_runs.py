@@ -75,7 +75,7 @@ def test_write_figure_writes_the_png_atomically_and_closes_the_figure(tmp_path) 
     assert [p.name for p in tmp_path.iterdir()] == ["f.png"]  # no temporary file left behind
 
 
-def test_environment_records_the_versions_and_the_commit(monkeypatch) -> None:
+def test_environment_records_the_versions_and_the_commit() -> None:
     import casadi
     import numpy as np
 
