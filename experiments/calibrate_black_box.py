@@ -20,8 +20,9 @@ The rule of :mod:`experiments.calibrate_controllers` picks per model: the lowest
 configurations whose mean NH3 slip stays below ``--slip-target`` on every calibration cycle. ``--hw-fit`` passes
 options to :func:`ident.for_control.fit_hw_for_control` (calibrating the model structure), ``--identified`` reuses
 the models of an earlier ``--json`` instead of identifying again. Each table row lists per cycle: the cycle, NOx
-[g/kWh], mean NH3 slip [ppm], failed solves, AdBlue [g], peak NH3 slip [ppm]. The chosen values are the defaults
-of :data:`control.blackbox.NMPC_SETTINGS`.
+[g/kWh], mean NH3 slip [ppm], failed solves, AdBlue [g], peak NH3 slip [ppm], suboptimal plans applied (the
+solver stopped short of convergence at a feasible iterate, :class:`control.mpc.NonlinearMPC`). The chosen values
+are the defaults of :data:`control.blackbox.NMPC_SETTINGS`.
 """
 from __future__ import annotations
 
@@ -69,7 +70,8 @@ def episode(model: str, config: dict[str, Any], seed: int, duration: float, blac
     return {"model": model, "config": config, "seed": seed, "nox": res.kpis["tailpipe_nox_g_per_kwh"],
             "slip": res.kpis["mean_nh3_slip_ppm"], "peak": res.kpis["peak_nh3_slip_ppm"],
             "adblue_g": res.kpis.get("adblue_g", float("nan")),
-            "failures": stats.get("solver_failures", 0.0), "wall_s": time.perf_counter() - t0}
+            "failures": stats.get("solver_failures", 0.0),
+            "suboptimal": stats.get("solver_suboptimal", 0.0), "wall_s": time.perf_counter() - t0}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -141,8 +143,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             nox, worst = float(np.mean([r["nox"] for r in rs])), max(r["slip"] for r in rs)
             table.append({"model": m, "config": c, "mean_nox_g_per_kwh": nox, "worst_mean_slip_ppm": worst,
                           "lut_mean_nox_g_per_kwh": float(np.mean([lut[r["cycle"]] for r in rs])),
-                          "per_seed": [(r["cycle"], r["nox"], r["slip"], r["failures"], r["adblue_g"], r["peak"])
-                                       for r in rs]})
+                          "per_seed": [(r["cycle"], r["nox"], r["slip"], r["failures"], r["adblue_g"], r["peak"],
+                                        r["suboptimal"]) for r in rs]})
             print(f"{m} {json.dumps(c)}: NOx {nox:.3f} g/kWh (LUT {table[-1]['lut_mean_nox_g_per_kwh']:.3f}), "
                   f"worst mean slip {worst:.2f} ppm, per cycle {table[-1]['per_seed']}", flush=True)
             if worst <= args.slip_target and (best is None or nox < best[0]):

@@ -37,6 +37,8 @@ def test_identified_reuses_saved_models_without_identifying(tmp_path, monkeypatc
                                     str(tmp_path / "prev.json"), "--configs", '{"anr_band_hi": null}',
                                     "--json", str(tmp_path / "out.json")])
     assert doc["table"][0]["config"] == {"anr_band_hi": None} and len(doc["table"][0]["per_seed"]) == 1
+    cycle, _nox, _slip, failures, _adblue, _peak, suboptimal = doc["table"][0]["per_seed"][0]
+    assert cycle == 5 and 0.0 <= suboptimal <= 20.0 and failures + suboptimal <= 20.0  # 10 s: 20 solves
 
 
 def test_refuses_bad_hw_fit_and_reuses_an_earlier_identification(capsys: pytest.CaptureFixture[str],
@@ -55,7 +57,7 @@ def test_refuses_bad_hw_fit_and_reuses_an_earlier_identification(capsys: pytest.
 
     def sweep(fn: object, tasks: list, **kw: object) -> list:
         return [{"model": t["model"], "config": t["config"], "seed": t["seed"], "nox": 1.0, "slip": 0.0,
-                 "adblue_g": 1.0, "failures": 0.0, "peak": 0.0} for t in tasks]
+                 "adblue_g": 1.0, "failures": 0.0, "peak": 0.0, "suboptimal": 0.0} for t in tasks]
 
     monkeypatch.chdir(tmp_path)   # the run folder goes under ./runs
     monkeypatch.setattr(calibrate_black_box, "identify_for_control", no_identification)
@@ -85,7 +87,7 @@ def test_ramped_mode_cycles_join_the_rule(capsys: pytest.CaptureFixture[str], tm
             bold = t["config"].get("anr_band_lo") == 1.0
             slip = 20.0 if bold and t["kind"] == "ramped_modes" else 1.0
             rows.append({"model": t["model"], "config": t["config"], "seed": t["seed"], "nox": 0.5 if bold else 1.0,
-                         "slip": slip, "adblue_g": 1.0, "failures": 0.0, "peak": 0.0})
+                         "slip": slip, "adblue_g": 1.0, "failures": 0.0, "peak": 0.0, "suboptimal": 0.0})
         return rows
 
     monkeypatch.chdir(tmp_path)
@@ -113,7 +115,7 @@ def test_ramped_identification_cycles_reach_the_identification_and_differ_from_c
 
     def sweep(fn: object, tasks: list, **kw: object) -> list:
         return [{"model": t["model"], "config": t["config"], "seed": t["seed"], "nox": 1.0, "slip": 0.0,
-                 "adblue_g": 1.0, "failures": 0.0, "peak": 0.0} for t in tasks]
+                 "adblue_g": 1.0, "failures": 0.0, "peak": 0.0, "suboptimal": 0.0} for t in tasks]
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(calibrate_black_box, "identify_for_control", identify)
