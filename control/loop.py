@@ -100,8 +100,9 @@ QUICK_RPEM_FIT: dict[str, Any] = {"input_filters": INPUT_FILTERS}
 #: '{"input_filters": [["surplus_ppm", 300.0]]}'``): 1.360 g/kWh at 2.15 ppm, against 0.651 at 7.71 without the
 #: filter (the seventh-round design, control.blackbox.NMPC_SETTINGS): far more cautious, not kept.
 #: Ninth round (2026-11-29): with the NMPC's IPOPT solver the filtered model's NMPC is no longer slow (a 12-cycle
-#: configuration in 5-7 minutes on 2 workers, on a fast host day) and its slip peaks fall (the transient calibration cycle 21: 1.3 ppm mean against
-#: 8.8 without the filter, at the same NOx), which leaves room for a higher NOx weight and lower band:
+#: configuration in 5-7 minutes on 2 workers, on a fast host day) and its slip peaks fall (the transient
+#: calibration cycle 21: 1.3 ppm mean against 8.8 without the filter, at about the same NOx), which leaves room for
+#: a higher NOx weight and lower band:
 #: ``python -m experiments.calibrate_black_box --models hammerstein_wiener --seeds 5 6 7 8 19 20 21 22 --duration
 #: 600 --ramped-seeds 5 6 7 8 --ramped-duration 1200 --workers 2 --hw-fit '{"input_filters": [["surplus_ppm",
 #: 300.0]]}' --configs ...`` gives 0.651 g/kWh at 7.28 ppm (the design of NMPC_SETTINGS), the lowest NOx within
