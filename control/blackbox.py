@@ -397,6 +397,12 @@ class BlackBoxMPC(NonlinearMPC):
         state cannot foresee; hot, an over-dose is seen at once and the model's slip prediction limits it.
     slip_cap_anr : the slip cap's ANR (:meth:`predict`; default :data:`SLIP_CAP_ANR`); None: no cap (the slip
         guard of a failed solve stays).
+    band_boost_anr, band_boost_ppm, band_boost_s : the slip-headroom boost of the lower band (None: none): while
+        the tailpipe NH3 sensor, low-pass filtered over ``band_boost_s`` seconds, reads 0 ppm, the lower band's ANR
+        (all stages, and the hot stages') is raised by ``band_boost_anr - lo``; the raise falls linearly to 0 as the
+        filtered reading rises to ``band_boost_ppm``. A measured-slip feedback on how hard the plan is pushed: the
+        calibration set's worst cycle fixes one band for all, while a cycle that slips nothing leaves NOx on the
+        table; the sensor, not the model (which has no storage state), says where there is headroom.
     """
 
     def __init__(self, model: BlackBoxModel, stages: Sequence[int] = (4,) * 20,
@@ -404,8 +410,18 @@ class BlackBoxMPC(NonlinearMPC):
                  band_floor_g_s: float = 0.05, terminal_s: float = 0.0, terminal_slip_ppm: float | None = None,
                  band_release_ppm: float | None = None, band_release_s: float = 60.0,
                  band_lo_hot: float | None = None, band_hot_k: float = 573.15, band_hi_cold: float | None = None,
-                 band_cold_k: float = 523.15, slip_cap_anr: float | None = SLIP_CAP_ANR, **kwargs: Any) -> None:
+                 band_cold_k: float = 523.15, slip_cap_anr: float | None = SLIP_CAP_ANR,
+                 band_boost_anr: float | None = None, band_boost_ppm: float = 3.0, band_boost_s: float = 120.0,
+                 **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)
+        self.band_boost_anr = _optional_nonnegative("band_boost_anr", band_boost_anr)
+        if self.band_boost_anr is not None and (anr_band is None or self.band_boost_anr < float(anr_band[0])):
+            raise ValueError(f"band_boost_anr needs a dose band (anr_band) whose lower ANR is at most band_boost_anr, "
+                             f"got band_boost_anr={band_boost_anr!r}, anr_band={anr_band!r}")
+        for name, value in (("band_boost_ppm", band_boost_ppm), ("band_boost_s", band_boost_s)):
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a number > 0, got {value!r}")
+        self.band_boost_ppm, self.band_boost_s = float(band_boost_ppm), float(band_boost_s)
         self.slip_cap_anr = _optional_nonnegative("slip_cap_anr", slip_cap_anr)
         self.band_hi_cold = _optional_nonnegative("band_hi_cold", band_hi_cold)
         self.band_cold_k = _band_temperature("band_cold_k", band_cold_k)
@@ -447,11 +463,17 @@ class BlackBoxMPC(NonlinearMPC):
         self.band_released_steps_ = 0
         self._release_left = 0
         self._nh3_filtered: float | None = None
+        self._nh3_slow: float | None = None
+        self._boost_sum = 0.0
+        self._boost_n = 0
 
     def stats(self) -> dict[str, float]:
-        """:meth:`NonlinearMPC.stats` and the steps the slip cap limited (``slip_capped_steps``)."""
+        """:meth:`NonlinearMPC.stats`, the steps the slip cap limited (``slip_capped_steps``), the steps the lower
+        band was released (``band_released_steps``) and the mean raise of the lower band's ANR by the slip-headroom
+        boost over the solves (``band_boost_mean``)."""
         out = {**super().stats(), "slip_capped_steps": float(self.slip_capped_steps_),
-               "band_released_steps": float(self.band_released_steps_)}
+               "band_released_steps": float(self.band_released_steps_),
+               "band_boost_mean": self._boost_sum / self._boost_n if self._boost_n else 0.0}
         if self.model.adaptation is not None:
             out.update(self.model.adaptation.stats())
         return out
@@ -498,7 +520,7 @@ class BlackBoxMPC(NonlinearMPC):
                 g.append(U[i] - hi_i * ff - self.band_floor_g_s)
                 lbg.append(-ca.inf)
                 ubg.append(0.0)
-                if self.anr_band[0] > 0 or self.band_lo_hot is not None:
+                if self.anr_band[0] > 0 or self.band_lo_hot is not None or self.band_boost_anr is not None:
                     # the lower band, only as far as the rate limit can reach it from the last dose (and the
                     # injector allows): a bound on parameters only, so it never makes the NLP infeasible; with
                     # band_lo_hot, that ANR on the stages whose previewed inlet temperature is at least band_hot_k
@@ -530,14 +552,36 @@ class BlackBoxMPC(NonlinearMPC):
         self._solver = ca.nlpsol("mpc", self.solver, {"x": wv, "f": cost, "g": ca.vertcat(*g), "p": pv}, opts)
         self._H, self._nx = H, nx
 
+    def _band_boost(self, nh3: float) -> float:
+        """The slip-headroom raise of the lower band's ANR for this solve (``band_boost_anr``; 0 without it): the
+        NH3 sensor low-pass filtered over ``band_boost_s`` (a non-finite reading keeps the filter), and the raise
+        ``(band_boost_anr - lo) * max(0, 1 - filtered / band_boost_ppm)`` (0 while the filter has no finite
+        reading)."""
+        if self.band_boost_anr is None or self.anr_band is None:
+            return 0.0
+        if self._nh3_slow is None or not np.isfinite(self._nh3_slow):
+            self._nh3_slow = nh3 if np.isfinite(nh3) else None
+            if self._nh3_slow is None:
+                return 0.0
+        elif np.isfinite(nh3):
+            self._nh3_slow += self.dt / (self.dt + self.band_boost_s) * (nh3 - self._nh3_slow)
+        raise_ = (self.band_boost_anr - float(self.anr_band[0])) * max(0.0, 1.0 - self._nh3_slow / self.band_boost_ppm)
+        self._boost_sum += raise_
+        self._boost_n += 1
+        return raise_
+
     def _band_lo(self, obs: np.ndarray) -> tuple[float, float]:
         """The lower band's ANRs for this solve (all stages, hot stages): 0 while released (``band_release_ppm``),
-        else the band's (the hot stages': ``band_lo_hot``, or the band's without it)."""
+        else the band's (the hot stages': ``band_lo_hot``, or the band's without it), raised by the slip-headroom
+        boost (``band_boost_anr``)."""
         lo = 0.0 if self.anr_band is None else float(self.anr_band[0])
         hot = lo if (self.band_lo_hot is None or self.anr_band is None) else float(self.band_lo_hot)
+        has_nh3 = len(obs) > OBS_NH3_SENSOR
+        nh3 = float(obs[OBS_NH3_SENSOR]) if has_nh3 else 0.0
+        boost = self._band_boost(nh3) if has_nh3 else 0.0    # no NH3 sensor: no measured headroom, no boost
+        lo, hot = lo + boost, hot + boost
         if max(lo, hot) <= 0.0 or self.band_release_ppm is None:
             return lo, hot
-        nh3 = float(obs[OBS_NH3_SENSOR]) if len(obs) > OBS_NH3_SENSOR else 0.0
         if self._nh3_filtered is None or not np.isfinite(self._nh3_filtered):
             self._nh3_filtered = nh3
         elif np.isfinite(nh3):
@@ -802,6 +846,9 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
                       band_lo_hot=cfg.get("anr_band_lo_hot"), band_hot_k=float(cfg.get("band_hot_k", 573.15)),
                       band_hi_cold=cfg.get("anr_band_hi_cold"), band_cold_k=float(cfg.get("band_cold_k", 523.15)),
                       slip_limit_ppm=float(cfg.get("plan_slip_ppm", SLIP_GUARD_PPM)),
-                      slip_cap_anr=cfg.get("slip_cap_anr", SLIP_CAP_ANR), **kw)
+                      slip_cap_anr=cfg.get("slip_cap_anr", SLIP_CAP_ANR),
+                      band_boost_anr=cfg.get("band_boost_anr") if anr_band else None,
+                      band_boost_ppm=float(cfg.get("band_boost_ppm", 3.0)),
+                      band_boost_s=float(cfg.get("band_boost_s", 120.0)), **kw)
     mpc.env_kwargs = {"nh3_sensor": True} if (nh3_sensor or slip_guard) else {}
     return mpc

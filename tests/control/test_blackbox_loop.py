@@ -379,6 +379,54 @@ def test_lower_band_is_released_while_the_nh3_sensor_shows_slip(models: dict) ->
         black_box_nmpc(model, info, quick=True, band_release_ppm=-1.0)
 
 
+def test_slip_headroom_boost_raises_the_lower_band_while_the_nh3_sensor_reads_low(models: dict) -> None:
+    """band_boost_anr / band_boost_ppm / band_boost_s: the lower band's ANR (and the hot stages') rises to
+    band_boost_anr while the slowly filtered NH3 sensor reads 0, falls linearly to the band at band_boost_ppm, and
+    yields to the band release; no boost without an NH3 reading or without the setting; the plan obeys the raised
+    band; bad settings refused by name."""
+    from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    model, info = load_for_control("hammerstein_wiener", models)
+    policy = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, anr_band_lo_hot=0.9, band_boost_anr=1.2,
+                            band_boost_ppm=4.0, band_boost_s=10.0)
+    obs = np.zeros(6)
+    lo, hot = policy._band_lo(obs)
+    assert (lo, hot) == pytest.approx((1.2, 1.1))
+    obs[5] = 2.0 * (1 + 10.0 / policy.dt)     # one reading: the 10 s filter reads 2 ppm, half of band_boost_ppm
+    assert policy._band_lo(obs) == pytest.approx((1.1, 1.0))
+    obs[5] = 100.0
+    for _ in range(200):                      # a long slip: the filter far above band_boost_ppm, no boost
+        lo, hot = policy._band_lo(obs)
+    assert (lo, hot) == pytest.approx((1.0, 0.9))
+    assert 0.0 < policy.stats()["band_boost_mean"] < 0.2
+    assert policy._band_lo(np.r_[np.zeros(5), np.nan])[0] == pytest.approx(1.0)   # a lost reading keeps the filter
+    assert policy._band_lo(np.zeros(5)) == pytest.approx((1.0, 0.9))             # no NH3 sensor: no boost
+    released = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, band_boost_anr=1.2, band_release_ppm=2.0)
+    assert released._band_lo(np.zeros(6))[0] == pytest.approx(1.2)
+    assert released._band_lo(np.r_[np.zeros(5), 1000.0]) == (0.0, 0.0)
+    plain = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0)
+    assert plain._band_lo(np.zeros(6)) == (1.0, 1.0) and plain.stats()["band_boost_mean"] == 0.0
+    # the NLP holds the plan at or above the raised band (as far as the rate limit reaches)
+    env = UreaSCREnv(cycle=cycle_segment("whtc", 40.0), nh3_sensor=True)
+    o, _ = env.reset(seed=0)
+    boosted = black_box_nmpc(model, info, quick=True, anr_band_lo=0.0, band_boost_anr=1.2)
+    boosted.attach(env)
+    boosted.predict(np.asarray(o, float), None, episode_start=np.array([True]))
+    dist = boosted._disturbances(np.asarray(o, float))
+    ff = dist[:, 2] * 1e-6 * dist[:, 0] / NH3_MOL_PER_G_ADBLUE
+    reach = boosted.max_rate_change_g_s2 * boosted.dt * (1 + np.r_[0, np.cumsum(boosted.stages[1:])])
+    raised = boosted.stats()["band_boost_mean"]      # one solve: this solve's raise (the sensor reads near 0)
+    assert 1.0 < raised <= 1.2
+    assert np.all(boosted.last_plan_["u"] >= np.minimum(np.minimum(raised * ff, reach), boosted.max_rate_g_s) - 1e-6)
+    with pytest.raises(ValueError, match="band_boost_anr"):
+        black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, band_boost_anr=0.9)
+    with pytest.raises(ValueError, match="band_boost_ppm"):
+        black_box_nmpc(model, info, quick=True, band_boost_anr=1.2, band_boost_ppm=0.0)
+    with pytest.raises(ValueError, match="band_boost_s"):
+        black_box_nmpc(model, info, quick=True, band_boost_anr=1.2, band_boost_s=float("nan"))
+
+
 def test_hot_lower_band_holds_the_plan_on_hot_stages_only(models: dict) -> None:
     """anr_band_lo_hot / band_hot_k: the stages whose previewed inlet temperature is at least band_hot_k keep the
     planned dose at or above that ANR times the feedforward (as far as the rate limit reaches); the others keep the
