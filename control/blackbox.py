@@ -403,6 +403,13 @@ class BlackBoxMPC(NonlinearMPC):
         filtered reading rises to ``band_boost_ppm``. A measured-slip feedback on how hard the plan is pushed: the
         calibration set's worst cycle fixes one band for all, while a cycle that slips nothing leaves NOx on the
         table; the sensor, not the model (which has no storage state), says where there is headroom.
+    band_surplus_ppm, band_surplus_s : the lower band eased by the recent over-dose (None: not eased): the
+        stoichiometric surplus of the applied dose over the measured NOx [ppm of the exhaust, NH3 minus NOx],
+        low-pass filtered over ``band_surplus_s`` seconds, scales the lower band's ANRs by ``max(0, 1 - filtered /
+        band_surplus_ppm)``. The band keeps the *average* dose in the identified region; after minutes of
+        over-dosing the catalyst holds NH3 that a forced stoichiometric dose would push out as slip later, which
+        the sensor shows only once it happens. A measured-signal filter (the models' own filtered-surplus input),
+        not a storage balance.
     """
 
     def __init__(self, model: BlackBoxModel, stages: Sequence[int] = (4,) * 20,
@@ -412,7 +419,7 @@ class BlackBoxMPC(NonlinearMPC):
                  band_lo_hot: float | None = None, band_hot_k: float = 573.15, band_hi_cold: float | None = None,
                  band_cold_k: float = 523.15, slip_cap_anr: float | None = SLIP_CAP_ANR,
                  band_boost_anr: float | None = None, band_boost_ppm: float = 3.0, band_boost_s: float = 120.0,
-                 **kwargs: Any) -> None:
+                 band_surplus_ppm: float | None = None, band_surplus_s: float = 300.0, **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)
         self.band_boost_anr = _optional_nonnegative("band_boost_anr", band_boost_anr)
         if self.band_boost_anr is not None and (anr_band is None or self.band_boost_anr < float(anr_band[0])):
@@ -422,6 +429,12 @@ class BlackBoxMPC(NonlinearMPC):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a number > 0, got {value!r}")
         self.band_boost_ppm, self.band_boost_s = float(band_boost_ppm), float(band_boost_s)
+        if band_surplus_ppm is not None and not (np.isfinite(band_surplus_ppm) and band_surplus_ppm > 0):
+            raise ValueError(f"band_surplus_ppm must be a number > 0 or None, got {band_surplus_ppm!r}")
+        if not (np.isfinite(band_surplus_s) and band_surplus_s > 0):
+            raise ValueError(f"band_surplus_s must be a number > 0, got {band_surplus_s!r}")
+        self.band_surplus_ppm = None if band_surplus_ppm is None else float(band_surplus_ppm)
+        self.band_surplus_s = float(band_surplus_s)
         self.slip_cap_anr = _optional_nonnegative("slip_cap_anr", slip_cap_anr)
         self.band_hi_cold = _optional_nonnegative("band_hi_cold", band_hi_cold)
         self.band_cold_k = _band_temperature("band_cold_k", band_cold_k)
@@ -466,14 +479,19 @@ class BlackBoxMPC(NonlinearMPC):
         self._nh3_slow: float | None = None
         self._boost_sum = 0.0
         self._boost_n = 0
+        self._surplus_filtered: float | None = None
+        self._ease_sum = 0.0
+        self._ease_n = 0
 
     def stats(self) -> dict[str, float]:
         """:meth:`NonlinearMPC.stats`, the steps the slip cap limited (``slip_capped_steps``), the steps the lower
-        band was released (``band_released_steps``) and the mean raise of the lower band's ANR by the slip-headroom
-        boost over the solves (``band_boost_mean``)."""
+        band was released (``band_released_steps``), the mean raise of the lower band's ANR by the slip-headroom
+        boost over the solves (``band_boost_mean``) and the mean easing of the band by the recent over-dose
+        (``band_surplus_ease_mean``, 1 - the factor)."""
         out = {**super().stats(), "slip_capped_steps": float(self.slip_capped_steps_),
                "band_released_steps": float(self.band_released_steps_),
-               "band_boost_mean": self._boost_sum / self._boost_n if self._boost_n else 0.0}
+               "band_boost_mean": self._boost_sum / self._boost_n if self._boost_n else 0.0,
+               "band_surplus_ease_mean": self._ease_sum / self._ease_n if self._ease_n else 0.0}
         if self.model.adaptation is not None:
             out.update(self.model.adaptation.stats())
         return out
@@ -570,16 +588,38 @@ class BlackBoxMPC(NonlinearMPC):
         self._boost_n += 1
         return raise_
 
+    def _surplus_scale(self, obs: np.ndarray) -> float:
+        """The lower band's factor from the recent over-dose (``band_surplus_ppm``; 1 without it): the surplus of
+        the last applied dose over the measured NOx, ``dose NH3 / flow - NOx`` [ppm], low-pass filtered over
+        ``band_surplus_s`` (non-finite readings keep the filter), mapped to ``max(0, 1 - filtered /
+        band_surplus_ppm)`` (at most 1: an under-dose never raises the band)."""
+        if self.band_surplus_ppm is None:
+            return 1.0
+        flow, nox = float(obs[OBS_FLOW]), float(obs[OBS_NOX_IN])
+        surplus = self._u_prev * NH3_MOL_PER_G_ADBLUE / max(flow, 0.1) * 1e6 - max(nox, 0.0)
+        if np.isfinite(surplus):
+            if self._surplus_filtered is None:
+                self._surplus_filtered = surplus
+            else:
+                self._surplus_filtered += self.dt / (self.dt + self.band_surplus_s) * (surplus - self._surplus_filtered)
+        if self._surplus_filtered is None:
+            return 1.0
+        scale = min(1.0, max(0.0, 1.0 - self._surplus_filtered / self.band_surplus_ppm))
+        self._ease_sum += 1.0 - scale
+        self._ease_n += 1
+        return scale
+
     def _band_lo(self, obs: np.ndarray) -> tuple[float, float]:
         """The lower band's ANRs for this solve (all stages, hot stages): 0 while released (``band_release_ppm``),
         else the band's (the hot stages': ``band_lo_hot``, or the band's without it), raised by the slip-headroom
-        boost (``band_boost_anr``)."""
+        boost (``band_boost_anr``) and eased by the recent over-dose (``band_surplus_ppm``)."""
         lo = 0.0 if self.anr_band is None else float(self.anr_band[0])
         hot = lo if (self.band_lo_hot is None or self.anr_band is None) else float(self.band_lo_hot)
         has_nh3 = len(obs) > OBS_NH3_SENSOR
         nh3 = float(obs[OBS_NH3_SENSOR]) if has_nh3 else 0.0
         boost = self._band_boost(nh3) if has_nh3 else 0.0    # no NH3 sensor: no measured headroom, no boost
-        lo, hot = lo + boost, hot + boost
+        scale = self._surplus_scale(obs)
+        lo, hot = scale * (lo + boost), scale * (hot + boost)
         if max(lo, hot) <= 0.0 or self.band_release_ppm is None:
             return lo, hot
         if self._nh3_filtered is None or not np.isfinite(self._nh3_filtered):
@@ -849,6 +889,8 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
                       slip_cap_anr=cfg.get("slip_cap_anr", SLIP_CAP_ANR),
                       band_boost_anr=cfg.get("band_boost_anr") if anr_band else None,
                       band_boost_ppm=float(cfg.get("band_boost_ppm", 3.0)),
-                      band_boost_s=float(cfg.get("band_boost_s", 120.0)), **kw)
+                      band_boost_s=float(cfg.get("band_boost_s", 120.0)),
+                      band_surplus_ppm=cfg.get("band_surplus_ppm"),
+                      band_surplus_s=float(cfg.get("band_surplus_s", 300.0)), **kw)
     mpc.env_kwargs = {"nh3_sensor": True} if (nh3_sensor or slip_guard) else {}
     return mpc
