@@ -410,6 +410,10 @@ class BlackBoxMPC(NonlinearMPC):
         over-dosing the catalyst holds NH3 that a forced stoichiometric dose would push out as slip later, which
         the sensor shows only once it happens. A measured-signal filter (the models' own filtered-surplus input),
         not a storage balance.
+    band_lead_s : the lower band's lead [s] (0: none): each stage's lower band applies to the largest feedforward
+        previewed over the stage and the ``band_lead_s`` seconds after it (capped at the stage's upper band), so the
+        plan doses ahead of a previewed NOx rise, as the oracle NMPC does when it fills the store before a load
+        step; the black-box model alone does not value that pre-dose.
     """
 
     def __init__(self, model: BlackBoxModel, stages: Sequence[int] = (4,) * 20,
@@ -419,7 +423,8 @@ class BlackBoxMPC(NonlinearMPC):
                  band_lo_hot: float | None = None, band_hot_k: float = 573.15, band_hi_cold: float | None = None,
                  band_cold_k: float = 523.15, slip_cap_anr: float | None = SLIP_CAP_ANR,
                  band_boost_anr: float | None = None, band_boost_ppm: float = 3.0, band_boost_s: float = 120.0,
-                 band_surplus_ppm: float | None = None, band_surplus_s: float = 300.0, **kwargs: Any) -> None:
+                 band_surplus_ppm: float | None = None, band_surplus_s: float = 300.0, band_lead_s: float = 0.0,
+                 **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)
         self.band_boost_anr = _optional_nonnegative("band_boost_anr", band_boost_anr)
         if self.band_boost_anr is not None and (anr_band is None or self.band_boost_anr < float(anr_band[0])):
@@ -435,6 +440,9 @@ class BlackBoxMPC(NonlinearMPC):
             raise ValueError(f"band_surplus_s must be a number > 0, got {band_surplus_s!r}")
         self.band_surplus_ppm = None if band_surplus_ppm is None else float(band_surplus_ppm)
         self.band_surplus_s = float(band_surplus_s)
+        if not (np.isfinite(band_lead_s) and band_lead_s >= 0):
+            raise ValueError(f"band_lead_s must be a number >= 0, got {band_lead_s!r}")
+        self.band_lead_s = float(band_lead_s)
         self.slip_cap_anr = _optional_nonnegative("slip_cap_anr", slip_cap_anr)
         self.band_hi_cold = _optional_nonnegative("band_hi_cold", band_hi_cold)
         self.band_cold_k = _band_temperature("band_cold_k", band_cold_k)
@@ -514,6 +522,17 @@ class BlackBoxMPC(NonlinearMPC):
         cost = 0
         x = x0
         elapsed = 0
+        # the feedforward of each stage, and the lower band's: the largest over the stage and band_lead_s after
+        ffs = [D[2, j] * 1e-6 * D[0, j] / NH3_MOL_PER_G_ADBLUE for j in range(H)]
+        starts = np.concatenate([[0], np.cumsum(self.stages)])
+        lead = round(self.band_lead_s / self.dt)
+        ff_lead = []
+        for i in range(H):
+            f = ffs[i]
+            for j in range(i + 1, H):
+                if starts[j] < starts[i + 1] + lead:
+                    f = ca.fmax(f, ffs[j])
+            ff_lead.append(f)
         for i, k in enumerate(self.stages):
             h = k * self.dt
             d = D[:, i]
@@ -532,10 +551,11 @@ class BlackBoxMPC(NonlinearMPC):
             lbg.append(-lim)
             ubg.append(lim)
             if self.anr_band is not None:
-                ff = d[2] * 1e-6 * d[0] / NH3_MOL_PER_G_ADBLUE
+                ff = ffs[i]
                 hi_i = self.anr_band[1] if self.band_hi_cold is None else \
                     ca.if_else(d[1] < self.band_cold_k, self.band_hi_cold, self.anr_band[1])
-                g.append(U[i] - hi_i * ff - self.band_floor_g_s)
+                upper = hi_i * ff + self.band_floor_g_s
+                g.append(U[i] - upper)
                 lbg.append(-ca.inf)
                 ubg.append(0.0)
                 if self.anr_band[0] > 0 or self.band_lo_hot is not None or self.band_boost_anr is not None:
@@ -545,7 +565,10 @@ class BlackBoxMPC(NonlinearMPC):
                     reach = u_prev + self.max_rate_change_g_s2 * (self.dt + sum(self.stages[1:i + 1]) * self.dt)
                     lo_i = band_lo if self.band_lo_hot is None else ca.if_else(d[1] >= self.band_hot_k, band_hot,
                                                                                 band_lo)
-                    g.append(U[i] - ca.fmin(ca.fmin(lo_i * ff, reach), self.max_rate_g_s))
+                    # with band_lead_s, on the largest feedforward previewed up to band_lead_s after the stage
+                    # (never above the stage's upper band)
+                    lo_ff = lo_i * ff if self.band_lead_s <= 0 else ca.fmin(lo_i * ff_lead[i], upper)
+                    g.append(U[i] - ca.fmin(ca.fmin(lo_ff, reach), self.max_rate_g_s))
                     lbg.append(0.0)
                     ubg.append(ca.inf)
             flow = d[0]
@@ -891,6 +914,7 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
                       band_boost_ppm=float(cfg.get("band_boost_ppm", 3.0)),
                       band_boost_s=float(cfg.get("band_boost_s", 120.0)),
                       band_surplus_ppm=cfg.get("band_surplus_ppm"),
-                      band_surplus_s=float(cfg.get("band_surplus_s", 300.0)), **kw)
+                      band_surplus_s=float(cfg.get("band_surplus_s", 300.0)),
+                      band_lead_s=float(cfg.get("band_lead_s", 0.0)), **kw)
     mpc.env_kwargs = {"nh3_sensor": True} if (nh3_sensor or slip_guard) else {}
     return mpc

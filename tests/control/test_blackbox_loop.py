@@ -457,6 +457,40 @@ def test_lower_band_eased_by_the_recent_over_dose(models: dict) -> None:
         black_box_nmpc(model, info, quick=True, band_surplus_ppm=50.0, band_surplus_s=-1.0)
 
 
+def test_lower_band_lead_doses_ahead_of_a_previewed_nox_rise(models: dict) -> None:
+    """band_lead_s: each stage's lower band applies to the largest feedforward previewed over the stage and the
+    lead after it (capped at the upper band, reached as far as the rate limit allows); 0 keeps the stage's own;
+    bad settings refused by name."""
+    from scr_env.constants import NH3_MOL_PER_G_ADBLUE
+    from scr_env.envs.urea_scr import UreaSCREnv
+
+    model, info = load_for_control("hammerstein_wiener", models)
+    env = UreaSCREnv(cycle=cycle_segment("whtc", 120.0), nh3_sensor=True)
+    obs, _ = env.reset(seed=0)
+    plans = {}
+    for lead in (0.0, 30.0):
+        policy = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, band_lead_s=lead)
+        policy.attach(env)
+        policy.predict(np.asarray(obs, float), None, episode_start=np.array([True]))
+        dist = policy._disturbances(np.asarray(obs, float))
+        ff = dist[:, 2] * 1e-6 * dist[:, 0] / NH3_MOL_PER_G_ADBLUE
+        starts = np.r_[0, np.cumsum(policy.stages)]
+        lead_steps = round(lead / policy.dt)
+        ahead = [[j for j in range(len(ff)) if j == i or i < j and starts[j] < starts[i + 1] + lead_steps]
+                 for i in range(len(ff))]
+        ff_lead = np.array([ff[js].max() for js in ahead])
+        assert np.any(ff_lead > ff + 1e-9) == (lead > 0)    # the segment's NOx rises within the horizon
+        upper = policy.anr_band[1] * ff + policy.band_floor_g_s
+        reach = policy.max_rate_change_g_s2 * policy.dt * (1 + np.r_[0, np.cumsum(policy.stages[1:])])
+        bound = np.minimum(np.minimum(np.minimum(ff_lead, upper), reach), policy.max_rate_g_s)
+        plans[lead] = policy.last_plan_["u"]
+        assert np.all(plans[lead] >= bound - 1e-6)
+        assert policy.band_lead_s == lead
+    assert np.all(np.isfinite(plans[30.0]))
+    with pytest.raises(ValueError, match="band_lead_s"):
+        black_box_nmpc(model, info, quick=True, band_lead_s=-5.0)
+
+
 def test_hot_lower_band_holds_the_plan_on_hot_stages_only(models: dict) -> None:
     """anr_band_lo_hot / band_hot_k: the stages whose previewed inlet temperature is at least band_hot_k keep the
     planned dose at or above that ANR times the feedforward (as far as the rate limit reaches); the others keep the
