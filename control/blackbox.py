@@ -403,13 +403,14 @@ class BlackBoxMPC(NonlinearMPC):
         filtered reading rises to ``band_boost_ppm``. A measured-slip feedback on how hard the plan is pushed: the
         calibration set's worst cycle fixes one band for all, while a cycle that slips nothing leaves NOx on the
         table; the sensor, not the model (which has no storage state), says where there is headroom.
-    band_surplus_ppm, band_surplus_s : the lower band eased by the recent over-dose (None: not eased): the
-        stoichiometric surplus of the applied dose over the measured NOx [ppm of the exhaust, NH3 minus NOx],
-        low-pass filtered over ``band_surplus_s`` seconds, scales the lower band's ANRs by ``max(0, 1 - filtered /
-        band_surplus_ppm)``. The band keeps the *average* dose in the identified region; after minutes of
+    band_surplus_anr, band_surplus_s : the lower band eased by the recent over-dose (None: not eased): the NH3 of
+        the applied dose and the measured NOx, as molar flows, each low-pass filtered over ``band_surplus_s``
+        seconds, give the recent mean ANR; its excess over 1 scales the lower band's ANRs by ``max(0, 1 - (ANR - 1)
+        / band_surplus_anr)``. The band keeps the *average* dose in the identified region; after minutes of
         over-dosing the catalyst holds NH3 that a forced stoichiometric dose would push out as slip later, which
-        the sensor shows only once it happens. A measured-signal filter (the models' own filtered-surplus input),
-        not a storage balance.
+        the sensor shows only once it happens. A measured-signal filter, not a storage balance. (Molar flows, not
+        the models' ppm surplus: at idle flow a small dose is a large surplus in ppm but little NH3, and the ppm
+        form released the band for minutes after every idle phase on the calibration cycles.)
     band_lead_s : the lower band's lead [s] (0: none): each stage's lower band applies to the largest feedforward
         previewed over the stage and the ``band_lead_s`` seconds after it (capped at the stage's upper band), so the
         plan doses ahead of a previewed NOx rise, as the oracle NMPC does when it fills the store before a load
@@ -423,7 +424,7 @@ class BlackBoxMPC(NonlinearMPC):
                  band_lo_hot: float | None = None, band_hot_k: float = 573.15, band_hi_cold: float | None = None,
                  band_cold_k: float = 523.15, slip_cap_anr: float | None = SLIP_CAP_ANR,
                  band_boost_anr: float | None = None, band_boost_ppm: float = 3.0, band_boost_s: float = 120.0,
-                 band_surplus_ppm: float | None = None, band_surplus_s: float = 300.0, band_lead_s: float = 0.0,
+                 band_surplus_anr: float | None = None, band_surplus_s: float = 300.0, band_lead_s: float = 0.0,
                  **kwargs: Any) -> None:
         super().__init__(model, horizon=len(stages), stage_steps=int(stages[0]), **kwargs)
         self.band_boost_anr = _optional_nonnegative("band_boost_anr", band_boost_anr)
@@ -434,11 +435,11 @@ class BlackBoxMPC(NonlinearMPC):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a number > 0, got {value!r}")
         self.band_boost_ppm, self.band_boost_s = float(band_boost_ppm), float(band_boost_s)
-        if band_surplus_ppm is not None and not (np.isfinite(band_surplus_ppm) and band_surplus_ppm > 0):
-            raise ValueError(f"band_surplus_ppm must be a number > 0 or None, got {band_surplus_ppm!r}")
+        if band_surplus_anr is not None and not (np.isfinite(band_surplus_anr) and band_surplus_anr > 0):
+            raise ValueError(f"band_surplus_anr must be a number > 0 or None, got {band_surplus_anr!r}")
         if not (np.isfinite(band_surplus_s) and band_surplus_s > 0):
             raise ValueError(f"band_surplus_s must be a number > 0, got {band_surplus_s!r}")
-        self.band_surplus_ppm = None if band_surplus_ppm is None else float(band_surplus_ppm)
+        self.band_surplus_anr = None if band_surplus_anr is None else float(band_surplus_anr)
         self.band_surplus_s = float(band_surplus_s)
         if not (np.isfinite(band_lead_s) and band_lead_s >= 0):
             raise ValueError(f"band_lead_s must be a number >= 0, got {band_lead_s!r}")
@@ -487,7 +488,7 @@ class BlackBoxMPC(NonlinearMPC):
         self._nh3_slow: float | None = None
         self._boost_sum = 0.0
         self._boost_n = 0
-        self._surplus_filtered: float | None = None
+        self._flows_filtered: np.ndarray | None = None     # NH3 dosed, NOx upstream [mol/s], low-pass filtered
         self._ease_sum = 0.0
         self._ease_n = 0
 
@@ -612,22 +613,23 @@ class BlackBoxMPC(NonlinearMPC):
         return raise_
 
     def _surplus_scale(self, obs: np.ndarray) -> float:
-        """The lower band's factor from the recent over-dose (``band_surplus_ppm``; 1 without it): the surplus of
-        the last applied dose over the measured NOx, ``dose NH3 / flow - NOx`` [ppm], low-pass filtered over
-        ``band_surplus_s`` (non-finite readings keep the filter), mapped to ``max(0, 1 - filtered /
-        band_surplus_ppm)`` (at most 1: an under-dose never raises the band)."""
-        if self.band_surplus_ppm is None:
+        """The lower band's factor from the recent over-dose (``band_surplus_anr``; 1 without it): the NH3 of the
+        last applied dose and the measured upstream NOx [mol/s], each low-pass filtered over ``band_surplus_s``
+        (non-finite readings keep the filters), their ratio the recent ANR, mapped to ``max(0, 1 - (ANR - 1) /
+        band_surplus_anr)`` (at most 1: an under-dose never raises the band; no NOx flow: no easing)."""
+        if self.band_surplus_anr is None:
             return 1.0
-        flow, nox = float(obs[OBS_FLOW]), float(obs[OBS_NOX_IN])
-        surplus = self._u_prev * NH3_MOL_PER_G_ADBLUE / max(flow, 0.1) * 1e6 - max(nox, 0.0)
-        if np.isfinite(surplus):
-            if self._surplus_filtered is None:
-                self._surplus_filtered = surplus
+        nox_flow = max(float(obs[OBS_NOX_IN]), 0.0) * 1e-6 * max(float(obs[OBS_FLOW]), 0.0)
+        flows = np.array([self._u_prev * NH3_MOL_PER_G_ADBLUE, nox_flow])
+        if np.all(np.isfinite(flows)):
+            if self._flows_filtered is None:
+                self._flows_filtered = flows
             else:
-                self._surplus_filtered += self.dt / (self.dt + self.band_surplus_s) * (surplus - self._surplus_filtered)
-        if self._surplus_filtered is None:
+                self._flows_filtered += self.dt / (self.dt + self.band_surplus_s) * (flows - self._flows_filtered)
+        if self._flows_filtered is None or self._flows_filtered[1] <= 0.0:
             return 1.0
-        scale = min(1.0, max(0.0, 1.0 - self._surplus_filtered / self.band_surplus_ppm))
+        anr = self._flows_filtered[0] / self._flows_filtered[1]
+        scale = min(1.0, max(0.0, 1.0 - (anr - 1.0) / self.band_surplus_anr))
         self._ease_sum += 1.0 - scale
         self._ease_n += 1
         return scale
@@ -635,7 +637,7 @@ class BlackBoxMPC(NonlinearMPC):
     def _band_lo(self, obs: np.ndarray) -> tuple[float, float]:
         """The lower band's ANRs for this solve (all stages, hot stages): 0 while released (``band_release_ppm``),
         else the band's (the hot stages': ``band_lo_hot``, or the band's without it), raised by the slip-headroom
-        boost (``band_boost_anr``) and eased by the recent over-dose (``band_surplus_ppm``)."""
+        boost (``band_boost_anr``) and eased by the recent over-dose (``band_surplus_anr``)."""
         lo = 0.0 if self.anr_band is None else float(self.anr_band[0])
         hot = lo if (self.band_lo_hot is None or self.anr_band is None) else float(self.band_lo_hot)
         has_nh3 = len(obs) > OBS_NH3_SENSOR
@@ -913,7 +915,7 @@ def black_box_nmpc(model: Any, info: dict[str, Any], quick: bool = False, nh3_se
                       band_boost_anr=cfg.get("band_boost_anr") if anr_band else None,
                       band_boost_ppm=float(cfg.get("band_boost_ppm", 3.0)),
                       band_boost_s=float(cfg.get("band_boost_s", 120.0)),
-                      band_surplus_ppm=cfg.get("band_surplus_ppm"),
+                      band_surplus_anr=cfg.get("band_surplus_anr"),
                       band_surplus_s=float(cfg.get("band_surplus_s", 300.0)),
                       band_lead_s=float(cfg.get("band_lead_s", 0.0)), **kw)
     mpc.env_kwargs = {"nh3_sensor": True} if (nh3_sensor or slip_guard) else {}

@@ -428,33 +428,37 @@ def test_slip_headroom_boost_raises_the_lower_band_while_the_nh3_sensor_reads_lo
 
 
 def test_lower_band_eased_by_the_recent_over_dose(models: dict) -> None:
-    """band_surplus_ppm / band_surplus_s: the lower band's ANRs scale by 1 - (filtered surplus of the applied dose
-    over the measured NOx) / band_surplus_ppm, clipped to [0, 1]; an under-dose never raises the band; without the
-    setting the band stays; bad settings refused by name."""
+    """band_surplus_anr / band_surplus_s: the lower band's ANRs scale by 1 - (recent ANR - 1) / band_surplus_anr,
+    clipped to [0, 1], the recent ANR the ratio of the filtered NH3 dosed to the filtered NOx flow [mol/s]; an
+    under-dose never raises the band; without the setting the band stays; bad settings refused by name."""
     from scr_env.constants import NH3_MOL_PER_G_ADBLUE
 
     model, info = load_for_control("hammerstein_wiener", models)
-    policy = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, anr_band_lo_hot=0.8, band_surplus_ppm=100.0,
+    policy = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, anr_band_lo_hot=0.8, band_surplus_anr=0.4,
                             band_surplus_s=10.0)
     obs = np.zeros(6)
-    obs[0], obs[2] = 200.0, 5.0             # 200 ppm NOx upstream, 5 mol/s exhaust
-    policy._u_prev = 0.0                     # no dose: surplus -200 ppm, the band stays
+    obs[0], obs[2] = 200.0, 5.0              # 200 ppm NOx upstream, 5 mol/s exhaust: 1 mmol/s NOx
+    nox_flow = 200e-6 * 5.0
+    policy._u_prev = 0.0                     # no dose: ANR 0, the band stays
     assert policy._band_lo(obs) == pytest.approx((1.0, 0.8))
-    policy._surplus_filtered = None
-    policy._u_prev = 250e-6 * 5.0 / NH3_MOL_PER_G_ADBLUE    # NH3 250 ppm of the exhaust: surplus 50 ppm
+    policy._flows_filtered = None
+    policy._u_prev = 1.2 * nox_flow / NH3_MOL_PER_G_ADBLUE    # ANR 1.2: half of the band eased
     assert policy._band_lo(obs) == pytest.approx((0.5, 0.4))
-    policy._u_prev = 400e-6 * 5.0 / NH3_MOL_PER_G_ADBLUE    # surplus 200 ppm for long: the band released
+    policy._u_prev = 2.0 * nox_flow / NH3_MOL_PER_G_ADBLUE    # ANR 2 for long: the band released
     for _ in range(200):
         lo, hot = policy._band_lo(obs)
     assert (lo, hot) == pytest.approx((0.0, 0.0), abs=1e-9)
     assert 0.5 < policy.stats()["band_surplus_ease_mean"] <= 1.0
+    idle = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, band_surplus_anr=0.4)
+    idle._u_prev = 0.1                       # a dose with no NOx flow: no easing (no ANR to speak of)
+    assert idle._band_lo(np.zeros(6)) == (1.0, 1.0)
     plain = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0)
     plain._u_prev = 1.0
     assert plain._band_lo(obs) == (1.0, 1.0) and plain.stats()["band_surplus_ease_mean"] == 0.0
-    with pytest.raises(ValueError, match="band_surplus_ppm"):
-        black_box_nmpc(model, info, quick=True, band_surplus_ppm=0.0)
+    with pytest.raises(ValueError, match="band_surplus_anr"):
+        black_box_nmpc(model, info, quick=True, band_surplus_anr=0.0)
     with pytest.raises(ValueError, match="band_surplus_s"):
-        black_box_nmpc(model, info, quick=True, band_surplus_ppm=50.0, band_surplus_s=-1.0)
+        black_box_nmpc(model, info, quick=True, band_surplus_anr=0.5, band_surplus_s=-1.0)
 
 
 def test_lower_band_lead_doses_ahead_of_a_previewed_nox_rise(models: dict) -> None:
