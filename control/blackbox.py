@@ -365,6 +365,15 @@ def _optional_nonnegative(name: str, value: float | None) -> float | None:
     return None if value is None else float(value)
 
 
+def _low_pass(state: Any, value: Any, dt: float, tau_s: float) -> Any:
+    """One step of a first-order low-pass filter with time constant ``tau_s`` [s] (backward Euler, step ``dt``):
+    ``state`` None (or non-finite) starts at ``value``; a non-finite ``value`` keeps ``state``. Scalars or arrays."""
+    ok = bool(np.all(np.isfinite(value)))
+    if state is None or not np.all(np.isfinite(state)):
+        return value if ok else None
+    return state + dt / (dt + tau_s) * (value - state) if ok else state
+
+
 def _band_temperature(name: str, value: float) -> float:
     """A band's temperature threshold in [200, 1200] K (ValueError naming ``name``)."""
     if not (np.isfinite(value) and 200.0 <= value <= 1200.0):
@@ -601,12 +610,9 @@ class BlackBoxMPC(NonlinearMPC):
         reading)."""
         if self.band_boost_anr is None or self.anr_band is None:
             return 0.0
-        if self._nh3_slow is None or not np.isfinite(self._nh3_slow):
-            self._nh3_slow = nh3 if np.isfinite(nh3) else None
-            if self._nh3_slow is None:
-                return 0.0
-        elif np.isfinite(nh3):
-            self._nh3_slow += self.dt / (self.dt + self.band_boost_s) * (nh3 - self._nh3_slow)
+        self._nh3_slow = _low_pass(self._nh3_slow, nh3, self.dt, self.band_boost_s)
+        if self._nh3_slow is None:
+            return 0.0
         raise_ = (self.band_boost_anr - float(self.anr_band[0])) * max(0.0, 1.0 - self._nh3_slow / self.band_boost_ppm)
         self._boost_sum += raise_
         self._boost_n += 1
@@ -621,11 +627,7 @@ class BlackBoxMPC(NonlinearMPC):
             return 1.0
         nox_flow = max(float(obs[OBS_NOX_IN]), 0.0) * 1e-6 * max(float(obs[OBS_FLOW]), 0.0)
         flows = np.array([self._u_prev * NH3_MOL_PER_G_ADBLUE, nox_flow])
-        if np.all(np.isfinite(flows)):
-            if self._flows_filtered is None:
-                self._flows_filtered = flows
-            else:
-                self._flows_filtered += self.dt / (self.dt + self.band_surplus_s) * (flows - self._flows_filtered)
+        self._flows_filtered = _low_pass(self._flows_filtered, flows, self.dt, self.band_surplus_s)
         if self._flows_filtered is None or self._flows_filtered[1] <= 0.0:
             return 1.0
         anr = self._flows_filtered[0] / self._flows_filtered[1]
@@ -647,11 +649,8 @@ class BlackBoxMPC(NonlinearMPC):
         lo, hot = scale * (lo + boost), scale * (hot + boost)
         if max(lo, hot) <= 0.0 or self.band_release_ppm is None:
             return lo, hot
-        if self._nh3_filtered is None or not np.isfinite(self._nh3_filtered):
-            self._nh3_filtered = nh3
-        elif np.isfinite(nh3):
-            self._nh3_filtered += self.dt / (self.dt + BAND_RELEASE_FILTER_S) * (nh3 - self._nh3_filtered)
-        if self._nh3_filtered > self.band_release_ppm:
+        self._nh3_filtered = _low_pass(self._nh3_filtered, nh3, self.dt, BAND_RELEASE_FILTER_S)
+        if self._nh3_filtered is not None and self._nh3_filtered > self.band_release_ppm:
             self._release_left = round(self.band_release_s / self.dt)
         elif self._release_left > 0:
             self._release_left -= 1

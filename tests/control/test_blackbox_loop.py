@@ -452,7 +452,7 @@ def test_lower_band_eased_by_the_recent_over_dose(models: dict) -> None:
     idle = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, band_surplus_anr=0.4)
     idle._u_prev = 0.1                       # a dose with no NOx flow: no easing (no ANR to speak of)
     assert idle._band_lo(np.zeros(6)) == (1.0, 1.0)
-    plain = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0)
+    plain = black_box_nmpc(model, info, quick=True, anr_band_lo=1.0, band_surplus_anr=None)
     plain._u_prev = 1.0
     assert plain._band_lo(obs) == (1.0, 1.0) and plain.stats()["band_surplus_ease_mean"] == 0.0
     with pytest.raises(ValueError, match="band_surplus_anr"):
