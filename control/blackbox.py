@@ -497,7 +497,7 @@ class BlackBoxMPC(NonlinearMPC):
         self._nh3_slow: float | None = None
         self._boost_sum = 0.0
         self._boost_n = 0
-        self._flows_filtered: np.ndarray | None = None     # NH3 dosed, NOx upstream [mol/s], low-pass filtered
+        self._flows_filtered: np.ndarray | None = None     # dose, stoichiometric dose [g/s], low-pass filtered
         self._ease_sum = 0.0
         self._ease_n = 0
 
@@ -619,14 +619,16 @@ class BlackBoxMPC(NonlinearMPC):
         return raise_
 
     def _surplus_scale(self, obs: np.ndarray) -> float:
-        """The lower band's factor from the recent over-dose (``band_surplus_anr``; 1 without it): the NH3 of the
-        last applied dose and the measured upstream NOx [mol/s], each low-pass filtered over ``band_surplus_s``
+        """The lower band's factor from the recent over-dose (``band_surplus_anr``; 1 without it): the last applied
+        dose and the stoichiometric dose on the measured upstream NOx (:func:`control.baselines.feedforward_dose_g_s`;
+        both proportional to molar NH3 flows), each low-pass filtered over ``band_surplus_s``
         (non-finite readings keep the filters), their ratio the recent ANR, mapped to ``max(0, 1 - (ANR - 1) /
         band_surplus_anr)`` (at most 1: an under-dose never raises the band; no NOx flow: no easing)."""
         if self.band_surplus_anr is None:
             return 1.0
-        nox_flow = max(float(obs[OBS_NOX_IN]), 0.0) * 1e-6 * max(float(obs[OBS_FLOW]), 0.0)
-        flows = np.array([self._u_prev * NH3_MOL_PER_G_ADBLUE, nox_flow])
+        # the applied dose and the stoichiometric dose on the measured NOx [g/s]: molar flows times one constant
+        stoich = float(feedforward_dose_g_s(float(obs[OBS_NOX_IN]), float(obs[OBS_FLOW])))
+        flows = np.array([self._u_prev, stoich])
         self._flows_filtered = _low_pass(self._flows_filtered, flows, self.dt, self.band_surplus_s)
         if self._flows_filtered is None or self._flows_filtered[1] <= 0.0:
             return 1.0
